@@ -1,0 +1,1 @@
+"""Interface modules: sensor senders and the train/sensor simulator."""

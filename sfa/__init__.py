@@ -1,0 +1,1 @@
+"""SFA: the track-constrained positioning filter."""

@@ -1,0 +1,1 @@
+"""Tools: replay, fault injection, benchmarks."""

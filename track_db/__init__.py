@@ -1,0 +1,1 @@
+"""The digitised track database (SQLite) and its geometry."""
