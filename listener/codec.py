@@ -320,7 +320,7 @@ class _Form:
     names: tuple[str, ...]  # payload fields, wire order
     struct: struct.Struct  # whole datagram, header included
     size: int
-    build: Callable[[tuple], InputMessage]  # validate + construct from the unpacked tuple
+    build: Callable[[bytes], InputMessage]  # unpack + validate + construct (length already checked)
     pack: Callable[[InputMessage, bool], bytes]  # validate (optionally) + pack
 
 
@@ -328,22 +328,27 @@ def _compile_form(t: SensorType, ints: tuple[str, ...], dbls: tuple[str, ...], b
     """Build the Struct and generate the validate-and-build / validate-and-pack functions of one form.
 
     Generated code (as dataclasses and namedtuple do) keeps the hot path to one chained comparison per
-    field and one positional constructor call, while the field table above stays the single source.
+    field and one slot store per field, while the field table above stays the single source. The
+    instance is filled through the slot descriptors, as the frozen dataclass ``__init__`` itself does
+    through ``object.__setattr__``, but without its per-field attribute-name lookup (about 2x faster;
+    the result compares, hashes and prints exactly like a constructor-built one, which the tests check).
     """
     layout = _LAYOUTS[t]
     names = ints + dbls
     st = struct.Struct(f"{byteorder}BHBB{len(ints)}i{len(dbls)}d")
     where = f"{t.name}({len(ints)},{len(dbls)})"
     cls_fields = [f.name for f in fields(layout.cls)]
+    values = [f"x_{n}" for n in names]
+    unpacked = ", ".join(["_t", "seq", "_ni", "_nd", *values])
     args = []
     for fname in cls_fields:
         if fname == "seq":
-            args.append("v[1]")
+            args.append("seq")
         elif fname in names:
-            args.append(f"v[{4 + names.index(fname)}]")
+            args.append(f"x_{fname}")
         else:
             args.append("None")
-    check = " and ".join(_range_expr(n, f"v[{4 + i}]") for i, n in enumerate(names)) or "True"
+    check = " and ".join(_range_expr(n, f"x_{n}") for n in names) or "True"
     # Encoding: the form must match exactly which optional fields are set.
     optional = ("fix_quality", "num_sv", "sigma_h", "epoch", "line_id")
     present = [f"m.{n} is not None" for n in names if n in optional]
@@ -357,10 +362,13 @@ def _compile_form(t: SensorType, ints: tuple[str, ...], dbls: tuple[str, ...], b
     enc_check = " and ".join(_range_expr(n, f"m.{n}") for n in names) or "True"
     int_types = " and ".join(f"type(m.{n}) is int" for n in ints) or "True"
     src = f"""
-def build(v):
+def build(data):
+    {unpacked} = UNPACK(data)
     if not ({check}):
-        _diagnose(NAMES, v[4:], DecodeError, WHERE)
-    return CLS({", ".join(args)})
+        _diagnose(NAMES, ({", ".join(values)}{"," if names else ""}), DecodeError, WHERE)
+    m = NEW(CLS)
+    {"; ".join(f"SET_{fname}(m, {arg})" for fname, arg in zip(cls_fields, args, strict=True))}
+    return m
 
 def pack(m, validate):
     if not ({shape}):
@@ -395,6 +403,9 @@ def pack(m, validate):
         "EncodeError": EncodeError,
         "RejectReason": RejectReason,
         "struct": struct,
+        "NEW": object.__new__,
+        "UNPACK": st.unpack,
+        **{f"SET_{fname}": getattr(layout.cls, fname).__set__ for fname in cls_fields},
     }
     exec(compile(src, f"<listener.codec form {where}>", "exec"), ns)  # noqa: S102 - generated from constants
     return _Form(t, len(ints), len(dbls), names, st, st.size, ns["build"], ns["pack"])
@@ -423,6 +434,10 @@ def _build_tables(byteorder: str) -> _Tables:
 
 
 _TABLES: Final[dict[str, _Tables]] = {bo: _build_tables(bo) for bo in BYTEORDERS}
+_DECODERS: Final[dict[str, dict[int, tuple[int, Callable[[bytes], InputMessage]]]]] = {
+    bo: {key: (form.size, form.build) for key, form in tables.by_key.items()}
+    for bo, tables in _TABLES.items()
+}  # the hot path's view: header key -> (datagram size, decode function)
 
 
 def _tables(byteorder: str) -> _Tables:
@@ -474,11 +489,15 @@ def decode_input(data: bytes, byteorder: str = "<") -> InputMessage:
     """
     if type(data) is not bytes:
         data = _as_bytes(data)
+    forms = _DECODERS.get(byteorder)
+    if forms is None:
+        _tables(byteorder)  # raises ConfigError
     n = len(data)
-    form = _tables(byteorder).by_key.get(data[0] << 16 | data[3] << 8 | data[4]) if n >= HEADER_SIZE else None
-    if form is None or n != form.size:
-        raise _reject_header(data, n)
-    return form.build(form.struct.unpack(data))
+    if n >= HEADER_SIZE:
+        entry = forms.get(data[0] << 16 | data[3] << 8 | data[4])
+        if entry is not None and n == entry[0]:
+            return entry[1](data)
+    raise _reject_header(data, n)
 
 
 def decode_header(data: bytes, byteorder: str = "<") -> tuple[SensorType, int, int, int]:
