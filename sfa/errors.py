@@ -13,4 +13,8 @@ class FilterStateError(SfaError):
     """The filter was asked for something its state cannot give (for example before initialisation)."""
 
 
+class MeasurementTypeError(SfaError):
+    """``TrackFilter.process`` was given something that is not one of the sfa.measurements types."""
+
+
 BASE_ERROR = SfaError

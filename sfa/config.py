@@ -1,0 +1,185 @@
+"""Typed configuration of the SFA filter: every noise parameter with its unit.
+
+Gates are given as probabilities (the probability that a fault-free measurement passes); they are
+turned into chi-square thresholds on the normalised innovation squared (NIS, dimensionless) with the
+measurement's degrees of freedom: odometer, gyro and ZUPT 1, GNSS 2.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import asdict, dataclass, fields
+
+from sfa.errors import FilterConfigError
+
+
+@dataclass(frozen=True)
+class FilterConfig:
+    """Noise model, integrity thresholds and policies of ``TrackFilter``. Defaults: mems-train IMU,
+    wheel odometer, standalone GNSS (see ``sfa.presets.filter_config_for``)."""
+
+    # --- IMU (prediction)
+    accel_noise_density_mps2_rthz: float = 5.88e-4  #: accelerometer white noise [m/s^2/sqrt(Hz)]
+    accel_model_noise_mps2_rthz: float = 0.05  #: unmodelled acceleration [m/s^2/sqrt(Hz)]
+    accel_bias_rw_mps2_rts: float = 2.0e-4  #: accelerometer bias random walk [m/s^2/sqrt(s)]
+    init_sigma_accel_bias_mps2: float = 0.088  #: initial bias sigma incl. pitch misalignment [m/s^2]
+    no_imu_accel_psd_m2ps3: float = 0.5  #: acceleration PSD while the IMU is timed out [m^2/s^3]
+    gravity_mps2: float = 9.80665  #: gravity [m/s^2]
+    max_predict_dt_s: float = 0.1  #: longest single prediction step [s]
+    # --- gyro (optional update gz = v * curvature(s) + b_g)
+    use_gyro: bool = False  #: apply the gyro update (see docs/filter.md)
+    gyro_sigma_radps: float = 0.02  #: gyro white noise per sample incl. curvature model error [rad/s]
+    gyro_bias_rw_radps_rts: float = 2.0e-5  #: gyro bias random walk [rad/s/sqrt(s)]
+    init_sigma_gyro_bias_radps: float = 0.0175  #: initial gyro bias sigma [rad/s]
+    gyro_min_speed_mps: float = 2.0  #: smallest speed for the gyro update [m/s]
+    # --- odometer
+    odo_scale_rw_per_rts: float = 1.0e-5  #: odometer scale-factor random walk [1/sqrt(s)]
+    init_sigma_odo_scale: float = 0.01  #: initial odometer scale-factor sigma [fraction]
+    odo_quant_mps: float = 0.01  #: odometer quantisation step [m/s]
+    odo_sigma_min_mps: float = 0.005  #: floor applied to each sample's reported sigma [m/s]
+    # --- GNSS
+    gps_white_sigma_m: float = 0.5  #: white position noise per horizontal axis at nominal sigma_h [m]
+    gps_gm_sigma_m: float = 1.0  #: correlated (Gauss-Markov) error per axis, steady sigma [m]
+    gps_gm_tau_s: float = 30.0  #: Gauss-Markov correlation time [s]
+    gps_nominal_sigma_h_m: float = 1.5  #: sigma_h the receiver reports in nominal conditions [m]
+    track_lateral_sigma_m: float = 0.3  #: cross-track uncertainty of the digitised centre line [m]
+    gps_late_max_s: float = 0.5  #: oldest GNSS fix still applied by back-propagation [s]
+    # --- gates (probability that a fault-free measurement passes)
+    gate_prob_odo: float = 0.9999  #: odometer gate, chi-square 1 dof [probability]
+    gate_prob_gps: float = 0.9999  #: GNSS gate, chi-square 2 dof [probability]
+    gate_prob_gyro: float = 0.999  #: gyro gate, chi-square 1 dof [probability]
+    gate_prob_zupt: float = 0.9999  #: zero-velocity gate, chi-square 1 dof [probability]
+    # --- standstill / ZUPT
+    zupt_sigma_mps: float = 0.005  #: zero-velocity pseudo-measurement sigma [m/s]
+    still_speed_mps: float = 0.02  #: odometer |speed| below which standstill may be declared [m/s]
+    still_fx_std_mps2: float = 0.02  #: IMU forward specific-force std below which standstill holds [m/s^2]
+    fx_ewma_tau_s: float = 0.5  #: time constant of the standstill mean/variance estimator [s]
+    # --- odometer slip / slide
+    slip_confirm_n: int = 3  #: consecutive gated odometer samples that declare a slip [samples]
+    slip_release_n: int = 10  #: consecutive in-gate samples that end it [samples]
+    slip_max_s: float = 20.0  #: longest slip before the odometer is trusted again [s]
+    # --- GNSS step / ramp
+    step_min_m: float = 5.0  #: smallest gated GNSS innovation classified as a step [m]
+    cusum_k_sigma: float = 0.5  #: CUSUM drift allowance [sigma of the along-track innovation]
+    cusum_h_sigma: float = 10.0  #: CUSUM decision threshold [sigma]
+    gps_holdoff_s: float = 20.0  #: GNSS fixes ignored after a ramp detection [s]
+    reacquire_s: float = 30.0  #: duration of self-consistent GNSS rejections that re-anchor the position [s]
+    reacquire_consistency_m: float = 3.0  #: largest drift of the rejected along-track residual [m]
+    # --- time-outs
+    imu_timeout_s: float = 0.5  #: IMU silent longer than this: timed out [s]
+    odo_timeout_s: float = 1.0  #: odometer silent longer than this: timed out [s]
+    gps_timeout_s: float = 3.0  #: GNSS without an accepted fix longer than this: timed out [s]
+    late_tolerance_s: float = 1e-6  #: IMU/odometer older than the state by more than this are dropped [s]
+    # --- interval and status
+    confidence: float = 0.95  #: two-sided confidence of the arc-length interval [probability]
+    degraded_sigma_m: float = 5.0  #: sigma_s above which the status is DEGRADED [m]
+    lost_sigma_m: float = 100.0  #: sigma_s above which the status is LOST [m]
+    min_variance: float = 1e-12  #: smallest variance kept on the covariance diagonal [unit^2]
+    # --- initialisation (GROUND TRUTH)
+    init_sigma_s_m: float = 0.1  #: arc-length sigma after GROUND TRUTH [m]
+    init_sigma_v_mps: float = 0.05  #: speed sigma after GROUND TRUTH [m/s]
+    # --- lines and junctions
+    junction_window_m: float = 30.0  #: distance before a junction at which branch hypotheses are spawned [m]
+    prune_log_ratio: float = 9.2  #: log-likelihood lead that prunes a hypothesis (9.2 = 1e4:1) [-]
+    max_hypotheses: int = 4  #: most line hypotheses kept at once [-]
+    loglik_nis_cap: float = 50.0  #: NIS cap in the hypothesis likelihood (robust to outliers) [NIS]
+
+    def __post_init__(self) -> None:
+        for f in fields(self):
+            value = getattr(self, f.name)
+            if f.type in ("bool",) or isinstance(value, bool):
+                if not isinstance(value, bool):
+                    raise FilterConfigError(f"{f.name} must be a bool, got {value!r}")
+                continue
+            if not isinstance(value, int | float) or not math.isfinite(float(value)):
+                raise FilterConfigError(f"{f.name} must be a finite number, got {value!r}")
+            if f.name != "min_variance" and value < 0:
+                raise FilterConfigError(f"{f.name} must be >= 0, got {value!r}")
+        for name in ("gate_prob_odo", "gate_prob_gps", "gate_prob_gyro", "gate_prob_zupt", "confidence"):
+            p = getattr(self, name)
+            if not 0.0 < p < 1.0:
+                raise FilterConfigError(f"{name} must be a probability in (0, 1), got {p!r}")
+        for name in ("gps_gm_tau_s", "max_predict_dt_s", "fx_ewma_tau_s", "gps_white_sigma_m",
+                     "gps_nominal_sigma_h_m", "min_variance", "zupt_sigma_mps", "init_sigma_s_m",
+                     "init_sigma_v_mps"):
+            if not getattr(self, name) > 0:
+                raise FilterConfigError(f"{name} must be > 0, got {getattr(self, name)!r}")
+        if self.max_hypotheses < 1:
+            raise FilterConfigError("max_hypotheses must be >= 1")
+
+    def replace(self, **changes: object) -> FilterConfig:
+        """A copy with some fields changed (validated)."""
+        unknown = set(changes) - {f.name for f in fields(self)}
+        if unknown:
+            raise FilterConfigError(f"unknown FilterConfig field(s): {', '.join(sorted(unknown))}")
+        return FilterConfig(**{**asdict(self), **changes})
+
+    def gate_nis(self, probability: float, dof: int) -> float:
+        """Chi-square threshold on the NIS that a fault-free measurement passes with ``probability``."""
+        from scipy.stats import chi2
+
+        return float(chi2.ppf(probability, dof))
+
+    def interval_z(self) -> float:
+        """Two-sided standard-normal quantile of ``confidence`` (1.96 for 95 %)."""
+        from scipy.stats import norm
+
+        return float(norm.ppf(0.5 + 0.5 * self.confidence))
+
+    def to_array(self):
+        """The flat float64 vector the compiled kernels read (slots named in ``sfa.layout``)."""
+        import numpy as np
+
+        from sfa import layout as L
+
+        c = np.zeros(L.NCFG)
+        c[L.K_Q_ACC] = self.accel_noise_density_mps2_rthz ** 2 + self.accel_model_noise_mps2_rthz ** 2
+        c[L.K_Q_BA] = self.accel_bias_rw_mps2_rts ** 2
+        c[L.K_Q_KO] = self.odo_scale_rw_per_rts ** 2
+        c[L.K_GM_SIGMA] = self.gps_gm_sigma_m
+        c[L.K_GM_TAU] = self.gps_gm_tau_s
+        c[L.K_Q_BG] = self.gyro_bias_rw_radps_rts ** 2
+        c[L.K_GPS_WHITE] = self.gps_white_sigma_m
+        c[L.K_GPS_NOMINAL_SIGMA_H] = self.gps_nominal_sigma_h_m
+        c[L.K_TRACK_LAT] = self.track_lateral_sigma_m
+        c[L.K_ODO_QUANT] = self.odo_quant_mps
+        c[L.K_ODO_SIGMA_MIN] = self.odo_sigma_min_mps
+        c[L.K_GATE_ODO] = self.gate_nis(self.gate_prob_odo, 1)
+        c[L.K_GATE_GPS] = self.gate_nis(self.gate_prob_gps, 2)
+        c[L.K_GATE_GYRO] = self.gate_nis(self.gate_prob_gyro, 1)
+        c[L.K_GATE_ZUPT] = self.gate_nis(self.gate_prob_zupt, 1)
+        c[L.K_GRAVITY] = self.gravity_mps2
+        c[L.K_MAX_DT] = self.max_predict_dt_s
+        c[L.K_IMU_TIMEOUT] = self.imu_timeout_s
+        c[L.K_ODO_TIMEOUT] = self.odo_timeout_s
+        c[L.K_GPS_TIMEOUT] = self.gps_timeout_s
+        c[L.K_Q_NO_IMU] = self.no_imu_accel_psd_m2ps3
+        c[L.K_ZUPT_SIGMA] = self.zupt_sigma_mps
+        c[L.K_STILL_SPEED] = self.still_speed_mps
+        c[L.K_STILL_FX_STD] = self.still_fx_std_mps2
+        c[L.K_FX_EWMA_TAU] = self.fx_ewma_tau_s
+        c[L.K_SLIP_CONFIRM_N] = self.slip_confirm_n
+        c[L.K_SLIP_RELEASE_N] = self.slip_release_n
+        c[L.K_SLIP_MAX_S] = self.slip_max_s
+        c[L.K_STEP_MIN_M] = self.step_min_m
+        c[L.K_CUSUM_K] = self.cusum_k_sigma
+        c[L.K_CUSUM_H] = self.cusum_h_sigma
+        c[L.K_GPS_HOLDOFF_S] = self.gps_holdoff_s
+        c[L.K_REACQ_S] = self.reacquire_s
+        c[L.K_REACQ_CONSIST_M] = self.reacquire_consistency_m
+        c[L.K_GPS_LATE_MAX] = self.gps_late_max_s
+        c[L.K_USE_GYRO] = 1.0 if self.use_gyro else 0.0
+        c[L.K_GYRO_SIGMA] = self.gyro_sigma_radps
+        c[L.K_GYRO_MIN_SPEED] = self.gyro_min_speed_mps
+        c[L.K_Z_INTERVAL] = self.interval_z()
+        c[L.K_DEGRADED_SIGMA] = self.degraded_sigma_m
+        c[L.K_LOST_SIGMA] = self.lost_sigma_m
+        c[L.K_P_MIN_VAR] = self.min_variance
+        c[L.K_INIT_SIGMA_S] = self.init_sigma_s_m
+        c[L.K_INIT_SIGMA_V] = self.init_sigma_v_mps
+        c[L.K_INIT_SIGMA_BA] = self.init_sigma_accel_bias_mps2
+        c[L.K_INIT_SIGMA_KO] = self.init_sigma_odo_scale
+        c[L.K_INIT_SIGMA_BG] = self.init_sigma_gyro_bias_radps
+        c[L.K_LATE_TOL] = self.late_tolerance_s
+        c[L.K_GPS_MAX_LOGLIK_NIS] = self.loglik_nis_cap
+        return c

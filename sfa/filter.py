@@ -1,0 +1,381 @@
+"""TrackFilter: the per-message face of the track-constrained EKF, with line hypotheses at junctions.
+
+The mathematics lives in ``sfa.kernels`` (compiled); this class owns the state arrays of one or more
+line hypotheses, converts measurements into kernel calls, and turns the arrays into typed results.
+It never reads a clock: every time comes with a measurement or as an argument.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from sfa import kernels as K
+from sfa import layout as L
+from sfa.config import FilterConfig
+from sfa.errors import FilterStateError, MeasurementTypeError
+from sfa.layout import FilterStatus, Outcome, reasons_from_bits
+from sfa.measurements import GpsMeas, ImuMeas, InitMeas, OdoMeas
+from sfa.track_arrays import TrackArrays
+
+
+@dataclass(frozen=True, slots=True)
+class Update:
+    """What ``TrackFilter.process`` did with one measurement."""
+
+    kind: str  #: "imu", "odo", "gps" or "init"
+    t_s: float  #: the measurement's time [s]
+    outcome: Outcome  #: accepted, gated, late, invalid, ...
+    nis: float | None = None  #: normalised innovation squared of the best hypothesis (odo/gps) [-]
+
+
+@dataclass(frozen=True, slots=True)
+class Estimate:
+    """The filter's answer at ``epoch_s``."""
+
+    epoch_s: float  #: time of the estimate [s]
+    arc_length_m: float  #: arc length on ``line_id`` [m]
+    speed_mps: float  #: speed along the track [m/s]
+    sigma_s_m: float  #: 1-sigma of the arc length [m]
+    interval_low_m: float  #: lower bound of the arc length at ``confidence`` (under-reading side) [m]
+    interval_high_m: float  #: upper bound (over-reading side) [m]
+    status: FilterStatus  #: integrity status
+    reasons: tuple[str, ...]  #: why the status is not NOMINAL (and informative flags)
+    line_id: int | None  #: line the estimate is on
+    lat_deg: float  #: WGS84 latitude of the estimate [deg]
+    lon_deg: float  #: WGS84 longitude of the estimate [deg]
+    sigma_v_mps: float = math.nan  #: 1-sigma of the speed [m/s]
+    confidence: float = 0.95  #: two-sided confidence of the interval [probability]
+    hypotheses: int = 0  #: line hypotheses currently kept
+
+
+@dataclass
+class _Hypothesis:
+    """State arrays of one line hypothesis."""
+
+    line: TrackArrays
+    x: np.ndarray = field(default_factory=lambda: np.zeros(L.NX))
+    P: np.ndarray = field(default_factory=lambda: np.zeros((L.NX, L.NX)))
+    aux: np.ndarray = field(default_factory=lambda: np.zeros(L.NAUX))
+    cnt: np.ndarray = field(default_factory=lambda: np.zeros(L.NCNT, dtype=np.int64))
+    spawned: frozenset = frozenset()  #: junction keys this lineage already branched at
+
+    def copy_to(self, line: TrackArrays, s_m: float, keys: frozenset) -> _Hypothesis:
+        h = _Hypothesis(line, self.x.copy(), self.P.copy(), self.aux.copy(), self.cnt.copy(), keys)
+        h.x[L.S] = s_m
+        return h
+
+
+def _track_errors() -> tuple[type[BaseException], ...]:
+    errors: list[type[BaseException]] = [KeyError, LookupError, ValueError]
+    try:
+        from track_db.errors import BASE_ERROR
+
+        errors.append(BASE_ERROR)
+    except ImportError:  # pragma: no cover - track_db is a hard dependency of the project
+        pass
+    return tuple(errors)
+
+
+class TrackFilter:
+    """Track-constrained EKF (arc length, speed, sensor errors) with integrity and line hypotheses.
+
+    ``process`` takes measurements in time order (late-data policy in docs/filter.md);
+    ``estimate`` reports the best hypothesis.
+    """
+
+    def __init__(self, track, config: FilterConfig | None = None) -> None:
+        self._track = track
+        self._config = config if config is not None else FilterConfig()
+        if not isinstance(self._config, FilterConfig):
+            raise FilterStateError(f"config must be a FilterConfig, got {type(self._config).__name__}")
+        self._cfg = self._config.to_array()
+        self._z = float(self._cfg[L.K_Z_INTERVAL])
+        self._lines: dict[int, TrackArrays] = {}
+        self._hyps: list[_Hypothesis] = []
+        self._reported = 0  # index into _hyps of the reported hypothesis
+        self._junctions = None  # built lazily: line_id -> list of (key, s_on_line, other_line, s_other)
+        self._track_errors = _track_errors()
+
+    # ------------------------------------------------------------------ public API
+    @property
+    def config(self) -> FilterConfig:
+        return self._config
+
+    @property
+    def initialised(self) -> bool:
+        return bool(self._hyps) and self._hyps[0].aux[L.A_INIT] != 0.0
+
+    def warm_up(self) -> None:
+        """Compile (or load from cache) every kernel on a throwaway two-vertex line."""
+        from sfa.batch import warm_up_batch
+
+        line = TrackArrays(0, 100.0, np.array([0.0, 100.0]), np.array([0.0, 100.0]), np.zeros(2),
+                           np.zeros(2), np.zeros(2))
+        h = _Hypothesis(line)
+        a = (h.x, h.P, h.aux, h.cnt, self._cfg)
+        K.step_init(*a, line.s_m, line.grade, 0.0, 1.0, 1.0)
+        K.step_imu(*a, line.s_m, line.grade, line.curvature_inv_m, 0.01, 0.0, 0.0, -9.8, 0.0, 0.0, 0.0)
+        K.step_odo(*a, line.s_m, line.grade, 0.05, 1.0, 0.05)
+        K.step_gps(*a, line.s_m, line.east_m, line.north_m, line.grade, 1.0, 1.0, 0.0, 1.5, 1)
+        K.status_of(h.x, h.P, h.aux, self._cfg, 1.0)
+        warm_up_batch(self._cfg)
+
+    def process(self, meas) -> Update:
+        """Apply one measurement (in time order). Bad values are rejected and counted, never raised."""
+        if isinstance(meas, ImuMeas):
+            return self._process_imu(meas)
+        if isinstance(meas, OdoMeas):
+            return self._process_odo(meas)
+        if isinstance(meas, GpsMeas):
+            return self._process_gps(meas)
+        if isinstance(meas, InitMeas):
+            return self._process_init(meas)
+        raise MeasurementTypeError(f"not a filter measurement: {type(meas).__name__}")
+
+    def estimate(self, at_s: float | None = None) -> Estimate:
+        """The best hypothesis's estimate at the state time; ``at_s`` (later) only ages the time-outs."""
+        if not self._hyps:
+            return Estimate(
+                epoch_s=math.nan, arc_length_m=math.nan, speed_mps=math.nan, sigma_s_m=math.inf,
+                interval_low_m=-math.inf, interval_high_m=math.inf, status=FilterStatus.INITIALISING,
+                reasons=("not_initialised",), line_id=None, lat_deg=math.nan, lon_deg=math.nan,
+                confidence=self._config.confidence, hypotheses=0,
+            )
+        h = self._hyps[self._reported]
+        t = float(h.aux[L.A_T_STATE])
+        t_eval = t if at_s is None or not math.isfinite(at_s) else max(t, float(at_s))
+        code, bits, sigma = K.status_of(h.x, h.P, h.aux, self._cfg, t_eval)
+        s = float(h.x[L.S])
+        lat, lon = self._latlon(h.line.line_id, s)
+        pv = float(h.P[L.V, L.V])
+        return Estimate(
+            epoch_s=t,
+            arc_length_m=s,
+            speed_mps=float(h.x[L.V]),
+            sigma_s_m=float(sigma),
+            interval_low_m=s - self._z * sigma,
+            interval_high_m=s + self._z * sigma,
+            status=FilterStatus(int(code)),
+            reasons=reasons_from_bits(int(bits)),
+            line_id=h.line.line_id,
+            lat_deg=lat,
+            lon_deg=lon,
+            sigma_v_mps=math.sqrt(pv) if pv > 0 else 0.0,
+            confidence=self._config.confidence,
+            hypotheses=len(self._hyps),
+        )
+
+    def counters(self) -> dict[str, int]:
+        """Per-sensor accepted/gated/late/invalid/timed-out counts and detections (reported hypothesis)."""
+        if not self._hyps:
+            return dict.fromkeys(L.COUNTER_NAMES, 0)
+        cnt = self._hyps[self._reported].cnt
+        return {name: int(cnt[i]) for i, name in enumerate(L.COUNTER_NAMES)}
+
+    def diagnostics(self) -> dict[str, object]:
+        """Counters plus the state, its standard deviations and the line hypotheses."""
+        out: dict[str, object] = {"counters": self.counters(), "hypotheses": []}
+        if self._hyps:
+            h = self._hyps[self._reported]
+            out["state"] = {n: float(v) for n, v in zip(L.STATE_NAMES, h.x, strict=True)}
+            out["sigma"] = {n: float(math.sqrt(max(h.P[i, i], 0.0))) for i, n in enumerate(L.STATE_NAMES)}
+            out["last_nis_gps"] = float(h.aux[L.A_LAST_NIS_GPS])
+            out["last_nis_odo"] = float(h.aux[L.A_LAST_NIS_ODO])
+            out["hypotheses"] = [
+                {"line_id": g.line.line_id, "s_m": float(g.x[L.S]), "loglik": float(g.aux[L.A_LOGLIK])}
+                for g in self._hyps
+            ]
+        return out
+
+    def state(self) -> tuple[np.ndarray, np.ndarray]:
+        """Copies of the reported hypothesis's state vector and covariance (indices in sfa.layout)."""
+        if not self._hyps:
+            raise FilterStateError("the filter is not initialised")
+        h = self._hyps[self._reported]
+        return h.x.copy(), h.P.copy()
+
+    # ------------------------------------------------------------------ measurements
+    def _process_init(self, m: InitMeas) -> Update:
+        try:
+            line = self._line_arrays(m.line_id)
+        except self._track_errors:
+            self._count_all(L.C_NOT_INIT, 0)
+            return Update("init", m.t_s, Outcome.INVALID)
+        if self._hyps:
+            base = self._hyps[self._reported]
+            h = _Hypothesis(line, base.x.copy(), base.P.copy(), base.aux.copy(), base.cnt.copy())
+        else:
+            h = _Hypothesis(line)
+        code = K.step_init(h.x, h.P, h.aux, h.cnt, self._cfg, line.s_m, line.grade,
+                           float(m.t_s), float(m.arc_length_m), float(m.speed_mps))
+        if code == K.O_INITIALISED:
+            self._hyps = [h]
+            self._reported = 0
+            self._spawn_branches()
+        return Update("init", m.t_s, Outcome(code))
+
+    def _process_imu(self, m: ImuMeas) -> Update:
+        try:
+            fx, fy, fz = (float(v) for v in m.f_mps2)
+            wx, wy, wz = (float(v) for v in m.w_radps)
+            t = float(m.t_s)
+        except (TypeError, ValueError):
+            return self._invalid("imu", m, L.C_IMU_BAD)
+        if not self._hyps:
+            return Update("imu", t, Outcome.NOT_INITIALISED)
+        code = K.O_INVALID
+        for i, h in enumerate(self._hyps):
+            c = K.step_imu(h.x, h.P, h.aux, h.cnt, self._cfg, h.line.s_m, h.line.grade,
+                           h.line.curvature_inv_m, t, fx, fy, fz, wx, wy, wz)
+            if i == self._reported:
+                code = c
+        return Update("imu", t, Outcome(code))
+
+    def _process_odo(self, m: OdoMeas) -> Update:
+        try:
+            t, v, sg = float(m.t_s), float(m.speed_mps), float(m.sigma_mps)
+        except (TypeError, ValueError):
+            return self._invalid("odo", m, L.C_ODO_BAD)
+        if not self._hyps:
+            return Update("odo", t, Outcome.NOT_INITIALISED)
+        code = K.O_INVALID
+        for i, h in enumerate(self._hyps):
+            c = K.step_odo(h.x, h.P, h.aux, h.cnt, self._cfg, h.line.s_m, h.line.grade, t, v, sg)
+            if i == self._reported:
+                code = c
+        nis = float(self._hyps[self._reported].aux[L.A_LAST_NIS_ODO])
+        if len(self._junction_map()) and code == K.O_ACCEPTED:
+            self._spawn_branches()
+        return Update("odo", t, Outcome(code), nis)
+
+    def _process_gps(self, m: GpsMeas) -> Update:
+        try:
+            t, lat, lon = float(m.t_s), float(m.lat_deg), float(m.lon_deg)
+            sigma_h = math.nan if m.sigma_h_m is None else float(m.sigma_h_m)
+            fq = -1 if m.fix_quality is None else int(m.fix_quality)
+        except (TypeError, ValueError):
+            return self._invalid("gps", m, L.C_GPS_BAD)
+        if not self._hyps:
+            return Update("gps", t, Outcome.NOT_INITIALISED)
+        if fq == 0:
+            east = north = 0.0
+        elif not (math.isfinite(lat) and math.isfinite(lon)) or abs(lat) > 90.0 or abs(lon) > 180.0:
+            east = north = math.nan
+        else:
+            east, north = self._track.to_local(lat, lon)
+            east, north = float(east), float(north)
+        code = K.O_INVALID
+        for i, h in enumerate(self._hyps):
+            c = K.step_gps(h.x, h.P, h.aux, h.cnt, self._cfg, h.line.s_m, h.line.east_m, h.line.north_m,
+                           h.line.grade, t, east, north, sigma_h, fq)
+            if i == self._reported:
+                code = c
+        nis = float(self._hyps[self._reported].aux[L.A_LAST_NIS_GPS])
+        if len(self._hyps) > 1:
+            self._prune()
+        if self._junction_map():
+            self._spawn_branches()
+        return Update("gps", t, Outcome(code), nis)
+
+    def _invalid(self, kind: str, m, counter: int) -> Update:
+        self._count_all(counter, 1)
+        t = m.t_s if isinstance(getattr(m, "t_s", None), float | int) else math.nan
+        return Update(kind, float(t), Outcome.INVALID)
+
+    def _count_all(self, counter: int, n: int) -> None:
+        for h in self._hyps:
+            h.cnt[counter] += n
+
+    # ------------------------------------------------------------------ lines and junctions
+    def _line_arrays(self, line_id: int | None) -> TrackArrays:
+        key = self._track.default_line_id if line_id is None else int(line_id)
+        arr = self._lines.get(key)
+        if arr is None:
+            arr = TrackArrays.from_line(self._track.line(key))
+            self._lines[key] = arr
+        return arr
+
+    def _latlon(self, line_id: int, s: float) -> tuple[float, float]:
+        try:
+            lat, lon = self._track.line(line_id).latlon_at(s)
+            return float(lat), float(lon)
+        except self._track_errors:
+            return math.nan, math.nan
+
+    def _junction_map(self) -> dict[int, list[tuple[int, float, int, float]]]:
+        """line_id -> [(junction key, s on this line, other line, s on the other line)], both directions."""
+        if self._junctions is None:
+            jmap: dict[int, list[tuple[int, float, int, float]]] = {}
+            try:
+                junctions = list(self._track.junctions()) if hasattr(self._track, "junctions") else []
+            except self._track_errors:
+                junctions = []
+            for k, j in enumerate(junctions):
+                jmap.setdefault(int(j.line_a), []).append((k, float(j.s_a_m), int(j.line_b), float(j.s_b_m)))
+                jmap.setdefault(int(j.line_b), []).append((k, float(j.s_b_m), int(j.line_a), float(j.s_a_m)))
+            self._junctions = jmap
+        return self._junctions
+
+    def _spawn_branches(self) -> None:
+        """Add a hypothesis on every line that branches off within the look-ahead window."""
+        jmap = self._junction_map()
+        if not jmap:
+            return
+        window = self._config.junction_window_m
+        new: list[_Hypothesis] = []
+        for h in self._hyps:
+            s, v = float(h.x[L.S]), float(h.x[L.V])
+            for key, s_here, other, s_other in jmap.get(h.line.line_id, ()):
+                if key in h.spawned:
+                    continue
+                ahead = (s_here - s) if v >= 0.0 else (s - s_here)
+                if not -window <= ahead <= window:
+                    continue
+                h.spawned = h.spawned | {key}
+                try:
+                    other_line = self._line_arrays(other)
+                except self._track_errors:
+                    continue
+                # direction of the other line relative to this one at the junction
+                _, _, de_a, dn_a = K.geom_at(h.line.s_m, h.line.east_m, h.line.north_m, s_here)
+                _, _, de_b, dn_b = K.geom_at(other_line.s_m, other_line.east_m, other_line.north_m, s_other)
+                if de_a * de_b + dn_a * dn_b <= 0.0:
+                    continue  # the branch runs the other way on its line: not supported (docs/filter.md)
+                new.append(h.copy_to(other_line, s_other + (s - s_here), h.spawned))
+        if new:
+            self._hyps.extend(new)
+            self._prune()
+
+    def _prune(self) -> None:
+        """Drop hypotheses whose GNSS log-likelihood trails the best by more than prune_log_ratio,
+        duplicates (same line, within 1 m) and the excess over max_hypotheses."""
+        reported = self._hyps[self._reported]
+        best = max(float(h.aux[L.A_LOGLIK]) for h in self._hyps)
+        keep: list[_Hypothesis] = []
+        order = sorted(self._hyps, key=lambda h: (h is not reported, -float(h.aux[L.A_LOGLIK])))
+        for h in order:
+            if float(h.aux[L.A_LOGLIK]) < best - self._config.prune_log_ratio:
+                continue
+            margin = self._config.junction_window_m
+            if h.x[L.S] > h.line.length_m + margin or h.x[L.S] < -margin:
+                if len(order) > 1:
+                    continue  # ran off the end of its line while others remain
+            if any(g.line.line_id == h.line.line_id and abs(g.x[L.S] - h.x[L.S]) < 1.0 for g in keep):
+                continue
+            keep.append(h)
+        if not keep:
+            keep = [reported]
+        keep = keep[: self._config.max_hypotheses]
+        # reported line: keep the current one unless another leads by more than 2 log units
+        if reported in keep:
+            lead = max(keep, key=lambda h: float(h.aux[L.A_LOGLIK]))
+            chosen = lead if float(lead.aux[L.A_LOGLIK]) > float(reported.aux[L.A_LOGLIK]) + 2.0 else reported
+        else:
+            chosen = max(keep, key=lambda h: float(h.aux[L.A_LOGLIK]))
+        if len(keep) == 1:
+            keep[0].aux[L.A_LOGLIK] = 0.0  # alone: restart the score so it never drifts
+        self._hyps = keep
+        self._reported = keep.index(chosen)

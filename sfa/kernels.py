@@ -1,0 +1,754 @@
+"""Compiled mathematics of the track-constrained EKF: the only implementation of the filter equations.
+
+Every function works on flat float64/int64 arrays whose slots are named in ``sfa.layout``:
+
+- ``x`` (NX) state, ``P`` (NX x NX) covariance, ``aux`` (NAUX) integrity/time scalars,
+  ``cnt`` (NCNT) counters, ``cfg`` (NCFG) configuration (built by ``FilterConfig.to_array``),
+- the line geometry ``ts, te, tn, tg, tk``: arc length [m], local east/north [m], grade [-] and signed
+  curvature [1/m] per vertex (``sfa.track_arrays``).
+
+``TrackFilter.process`` calls one ``step_*`` function per message; ``sfa.batch`` calls the same
+functions in a compiled loop. The equations are documented in docs/filter.md; each line here carries
+its equation as a comment. Nothing in here reads a clock: time is always an argument.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit
+
+from sfa.layout import (
+    A_CUSUM_N,
+    A_CUSUM_P,
+    A_FX,
+    A_FX_MEAN,
+    A_FX_VAR,
+    A_GPS_E,
+    A_GPS_HOLD,
+    A_GPS_N,
+    A_GPS_REJ,
+    A_GPS_TO,
+    A_GZ,
+    A_IMU_TO,
+    A_INIT,
+    A_LAST_NIS_GPS,
+    A_LAST_NIS_ODO,
+    A_LOGLIK,
+    A_ODO_TO,
+    A_RAMP_T,
+    A_REJ_DS,
+    A_REJ_MAXDEV,
+    A_SLIP,
+    A_SLIP_BAD,
+    A_SLIP_GOOD,
+    A_SLIP_T0,
+    A_STEP_FLAG,
+    A_STILL,
+    A_T_FIRST_GPS_REJ,
+    A_T_GPS,
+    A_T_IMU,
+    A_T_INIT,
+    A_T_ODO,
+    A_T_STATE,
+    BA,
+    BG,
+    C_COV_REPAIR,
+    C_GPS_BAD,
+    C_GPS_GATED,
+    C_GPS_HELD,
+    C_GPS_LATE,
+    C_GPS_LATE_USED,
+    C_GPS_NOFIX,
+    C_GPS_OK,
+    C_GPS_REACQ,
+    C_GPS_TIMEOUT,
+    C_GYRO_GATED,
+    C_GYRO_OK,
+    C_IMU_BAD,
+    C_IMU_LATE,
+    C_IMU_OK,
+    C_IMU_TIMEOUT,
+    C_INIT,
+    C_NOT_INIT,
+    C_ODO_BAD,
+    C_ODO_GATED,
+    C_ODO_LATE,
+    C_ODO_OK,
+    C_ODO_REANCHOR,
+    C_ODO_TIMEOUT,
+    C_RAMP,
+    C_SLIP,
+    C_STEP,
+    C_ZUPT,
+    GE,
+    GN,
+    K_CUSUM_H,
+    K_CUSUM_K,
+    K_DEGRADED_SIGMA,
+    K_FX_EWMA_TAU,
+    K_GATE_GPS,
+    K_GATE_GYRO,
+    K_GATE_ODO,
+    K_GATE_ZUPT,
+    K_GM_SIGMA,
+    K_GM_TAU,
+    K_GPS_HOLDOFF_S,
+    K_GPS_LATE_MAX,
+    K_GPS_MAX_LOGLIK_NIS,
+    K_GPS_NOMINAL_SIGMA_H,
+    K_GPS_TIMEOUT,
+    K_GPS_WHITE,
+    K_GRAVITY,
+    K_GYRO_MIN_SPEED,
+    K_GYRO_SIGMA,
+    K_IMU_TIMEOUT,
+    K_INIT_SIGMA_BA,
+    K_INIT_SIGMA_BG,
+    K_INIT_SIGMA_KO,
+    K_INIT_SIGMA_S,
+    K_INIT_SIGMA_V,
+    K_LATE_TOL,
+    K_LOST_SIGMA,
+    K_MAX_DT,
+    K_ODO_QUANT,
+    K_ODO_SIGMA_MIN,
+    K_ODO_TIMEOUT,
+    K_P_MIN_VAR,
+    K_Q_ACC,
+    K_Q_BA,
+    K_Q_BG,
+    K_Q_KO,
+    K_Q_NO_IMU,
+    K_REACQ_CONSIST_M,
+    K_REACQ_S,
+    K_SLIP_CONFIRM_N,
+    K_SLIP_MAX_S,
+    K_SLIP_RELEASE_N,
+    K_STEP_MIN_M,
+    K_STILL_FX_STD,
+    K_STILL_SPEED,
+    K_TRACK_LAT,
+    K_USE_GYRO,
+    K_ZUPT_SIGMA,
+    KO,
+    NX,
+    R_GNSS_RAMP,
+    R_GNSS_REJECTING,
+    R_GNSS_STEP,
+    R_GPS_TIMEOUT,
+    R_IMU_TIMEOUT,
+    R_NO_MOTION_SENSOR,
+    R_NOT_INIT,
+    R_ODO_TIMEOUT,
+    R_SIGMA_HIGH,
+    R_SIGMA_LOST,
+    R_SLIP,
+    R_STANDSTILL,
+    S,
+    V,
+)
+
+# Outcome codes (same values as sfa.layout.Outcome; repeated as ints for the compiled code)
+O_ACCEPTED = 0
+O_GATED = 1
+O_LATE = 2
+O_INVALID = 3
+O_NOT_INIT = 4
+O_NO_FIX = 5
+O_INITIALISED = 6
+O_HELD_OFF = 7
+
+LOG_2PI = math.log(2.0 * math.pi)
+
+
+# ============================================================== track geometry on vertex arrays
+@njit(cache=True)
+def seg_index(ts, s):
+    """Index i of the segment [ts[i], ts[i+1]] holding s (clamped to the first/last segment)."""
+    i = np.searchsorted(ts, s, side="right") - 1
+    if i < 0:
+        i = 0
+    n = ts.shape[0]
+    if i > n - 2:
+        i = n - 2
+    return i
+
+
+@njit(cache=True)
+def geom_at(ts, te, tn, s):
+    """Point h(s) = (east, north) [m] and its derivative dh/ds (the segment tangent) at arc length s.
+
+    Within a segment arc length maps linearly onto the local segment; beyond the ends the first/last
+    segment is extended, so h stays smooth and finite for any finite s.
+    """
+    i = seg_index(ts, s)
+    ds = ts[i + 1] - ts[i]
+    if ds <= 0.0:
+        ds = 1e-9
+    de = (te[i + 1] - te[i]) / ds  # de/ds
+    dn = (tn[i + 1] - tn[i]) / ds  # dn/ds
+    u = s - ts[i]
+    return te[i] + de * u, tn[i] + dn * u, de, dn
+
+
+@njit(cache=True)
+def interp_at(ts, arr, s):
+    """Piecewise-linear value of a per-vertex quantity at s, held constant beyond the ends."""
+    n = ts.shape[0]
+    if s <= ts[0]:
+        return arr[0]
+    if s >= ts[n - 1]:
+        return arr[n - 1]
+    i = seg_index(ts, s)
+    ds = ts[i + 1] - ts[i]
+    if ds <= 0.0:
+        return arr[i]
+    return arr[i] + (arr[i + 1] - arr[i]) * (s - ts[i]) / ds
+
+
+@njit(cache=True)
+def slope_at(ts, arr, s):
+    """Derivative d(arr)/ds of the piecewise-linear per-vertex quantity at s (0 beyond the ends)."""
+    n = ts.shape[0]
+    if s <= ts[0] or s >= ts[n - 1]:
+        return 0.0
+    i = seg_index(ts, s)
+    ds = ts[i + 1] - ts[i]
+    if ds <= 0.0:
+        return 0.0
+    return (arr[i + 1] - arr[i]) / ds
+
+
+# ============================================================== covariance hygiene
+@njit(cache=True)
+def _cholesky_ok(P):
+    """True when P is numerically positive definite (a plain Cholesky succeeds)."""
+    n = P.shape[0]
+    L = np.zeros((n, n))
+    for j in range(n):
+        d = P[j, j]
+        for k in range(j):
+            d -= L[j, k] * L[j, k]
+        if not (d > 0.0) or not math.isfinite(d):
+            return False
+        L[j, j] = math.sqrt(d)
+        for i in range(j + 1, n):
+            v = P[i, j]
+            for k in range(j):
+                v -= L[i, k] * L[j, k]
+            L[i, j] = v / L[j, j]
+    return True
+
+
+@njit(cache=True)
+def condition_cov(P, cfg, cnt):
+    """Keep P symmetric positive definite: P = (P + P')/2, floor the diagonal, and if a Cholesky
+    factorisation still fails drop the correlations (P = diag(P)). Repairs are counted."""
+    n = P.shape[0]
+    pmin = cfg[K_P_MIN_VAR]
+    repaired = False
+    for i in range(n):
+        for j in range(i + 1, n):
+            m = 0.5 * (P[i, j] + P[j, i])  # P = (P + P') / 2
+            P[i, j] = m
+            P[j, i] = m
+        if not (P[i, i] >= pmin):  # also catches NaN
+            P[i, i] = pmin
+            repaired = True
+    if not _cholesky_ok(P):
+        for i in range(n):
+            for j in range(n):
+                if i != j:
+                    P[i, j] = 0.0
+        repaired = True
+    if repaired:
+        cnt[C_COV_REPAIR] += 1
+
+
+# ============================================================== prediction
+@njit(cache=True)
+def _predict_step(x, P, aux, cfg, ts, tg, h, imu_ok):
+    """One prediction step of length h [s] with the held IMU specific force (zero-order hold)."""
+    g = cfg[K_GRAVITY]
+    grade = interp_at(ts, tg, x[S])
+    sin_th = grade / math.sqrt(1.0 + grade * grade)  # grade = tan(theta)
+    if imu_ok:
+        a = aux[A_FX] - x[BA] - g * sin_th  # dv/dt = f_x - b_a - g sin(theta)
+        q = cfg[K_Q_ACC]
+    else:
+        a = 0.0  # no IMU: constant-velocity model with a wider acceleration noise
+        q = cfg[K_Q_NO_IMU]
+    tau = cfg[K_GM_TAU]
+    phi = math.exp(-h / tau)  # Gauss-Markov transition exp(-h/tau)
+    # x = f(x): s += v h + a h^2 / 2 ; v += a h ; e_gnss *= phi
+    x[S] += x[V] * h + 0.5 * a * h * h
+    x[V] += a * h
+    x[GE] *= phi
+    x[GN] *= phi
+    # F = df/dx
+    F = np.eye(NX)
+    F[S, V] = h
+    if imu_ok:
+        F[S, BA] = -0.5 * h * h
+        F[V, BA] = -h
+    F[GE, GE] = phi
+    F[GN, GN] = phi
+    # P = F P F' + Q
+    FP = F @ P
+    P[:, :] = FP @ F.T
+    P[S, S] += q * h * h * h / 3.0  # Q of white acceleration noise, PSD q [m^2/s^3]
+    P[S, V] += q * h * h / 2.0
+    P[V, S] += q * h * h / 2.0
+    P[V, V] += q * h
+    P[BA, BA] += cfg[K_Q_BA] * h  # bias random walk
+    P[KO, KO] += cfg[K_Q_KO] * h  # odometer scale random walk
+    gm = cfg[K_GM_SIGMA]
+    P[GE, GE] += gm * gm * (1.0 - phi * phi)  # Gauss-Markov driving noise
+    P[GN, GN] += gm * gm * (1.0 - phi * phi)
+    P[BG, BG] += cfg[K_Q_BG] * h
+
+
+@njit(cache=True)
+def predict_to(x, P, aux, cnt, cfg, ts, tg, t):
+    """Propagate the state from aux[A_T_STATE] to t in steps of at most cfg[K_MAX_DT]."""
+    dt_total = t - aux[A_T_STATE]
+    if dt_total <= 0.0:
+        return
+    imu_ok = (t - aux[A_T_IMU]) <= cfg[K_IMU_TIMEOUT]
+    n = int(math.ceil(dt_total / cfg[K_MAX_DT]))
+    if n < 1:
+        n = 1
+    h = dt_total / n
+    for _ in range(n):
+        _predict_step(x, P, aux, cfg, ts, tg, h, imu_ok)
+    aux[A_T_STATE] = t
+    condition_cov(P, cfg, cnt)
+
+
+# ============================================================== generic update (1 or 2 rows)
+@njit(cache=True)
+def innovation(P, H, R, y, m):
+    """Innovation covariance S = H P H' + R, its inverse, the NIS y' S^-1 y and log det S."""
+    PHt = P @ H[:m, :].T
+    Sm = H[:m, :] @ PHt
+    for i in range(m):
+        for j in range(m):
+            Sm[i, j] += R[i, j]
+    Si = np.zeros((m, m))
+    if m == 1:
+        det = Sm[0, 0]
+        Si[0, 0] = 1.0 / det
+    else:
+        det = Sm[0, 0] * Sm[1, 1] - Sm[0, 1] * Sm[1, 0]
+        Si[0, 0] = Sm[1, 1] / det
+        Si[1, 1] = Sm[0, 0] / det
+        Si[0, 1] = -Sm[0, 1] / det
+        Si[1, 0] = -Sm[1, 0] / det
+    nis = 0.0
+    for i in range(m):
+        for j in range(m):
+            nis += y[i] * Si[i, j] * y[j]
+    logdet = math.log(det) if det > 0.0 else 1e300
+    return PHt, Sm, Si, nis, logdet
+
+
+@njit(cache=True)
+def apply_update(x, P, H, R, y, m, PHt, Si, cfg, cnt):
+    """K = P H' S^-1 ; x = x + K y ; Joseph form P = (I - K H) P (I - K H)' + K R K'.
+
+    The update is abandoned (state unchanged) if it would produce a non-finite value."""
+    K = PHt @ Si
+    xn = x + K @ y[:m]
+    IKH = np.eye(NX) - K @ H[:m, :]
+    Pn = IKH @ P @ IKH.T + K @ R[:m, :m] @ K.T
+    for i in range(NX):
+        if not math.isfinite(xn[i]):
+            return False
+        for j in range(NX):
+            if not math.isfinite(Pn[i, j]):
+                return False
+    x[:] = xn
+    P[:, :] = Pn
+    condition_cov(P, cfg, cnt)
+    return True
+
+
+# ============================================================== timeouts and status
+@njit(cache=True)
+def check_timeouts(aux, cnt, cfg, t):
+    """Count each sensor's transition into time-out at time t."""
+    flags = (
+        (A_IMU_TO, A_T_IMU, K_IMU_TIMEOUT, C_IMU_TIMEOUT),
+        (A_ODO_TO, A_T_ODO, K_ODO_TIMEOUT, C_ODO_TIMEOUT),
+        (A_GPS_TO, A_T_GPS, K_GPS_TIMEOUT, C_GPS_TIMEOUT),
+    )
+    for k in range(3):
+        a_flag, a_t, k_to, c_to = flags[k]
+        out = (t - aux[a_t]) > cfg[k_to]
+        if out and aux[a_flag] == 0.0:
+            cnt[c_to] += 1
+        aux[a_flag] = 1.0 if out else 0.0
+
+
+@njit(cache=True)
+def status_of(x, P, aux, cfg, t):
+    """(status, reason bits, sigma_s) at time t >= state time. Status codes as sfa.layout.FilterStatus."""
+    if aux[A_INIT] == 0.0:
+        return 0, R_NOT_INIT, math.inf
+    bits = 0
+    imu_to = (t - aux[A_T_IMU]) > cfg[K_IMU_TIMEOUT]
+    odo_to = (t - aux[A_T_ODO]) > cfg[K_ODO_TIMEOUT]
+    gps_to = (t - aux[A_T_GPS]) > cfg[K_GPS_TIMEOUT]
+    if imu_to:
+        bits |= R_IMU_TIMEOUT
+    if odo_to:
+        bits |= R_ODO_TIMEOUT
+    if gps_to:
+        bits |= R_GPS_TIMEOUT
+    if imu_to and odo_to:
+        bits |= R_NO_MOTION_SENSOR
+    if aux[A_SLIP] != 0.0:
+        bits |= R_SLIP
+    if aux[A_GPS_REJ] > 0.0:
+        bits |= R_GNSS_REJECTING
+        if aux[A_STEP_FLAG] != 0.0:
+            bits |= R_GNSS_STEP
+    if t < aux[A_GPS_HOLD]:
+        bits |= R_GNSS_RAMP
+    if aux[A_STILL] != 0.0:
+        bits |= R_STANDSTILL
+    var = P[S, S]
+    sigma = math.sqrt(var) if var > 0.0 else 0.0
+    if sigma > cfg[K_LOST_SIGMA]:
+        bits |= R_SIGMA_LOST
+    elif sigma > cfg[K_DEGRADED_SIGMA]:
+        bits |= R_SIGMA_HIGH
+    if (bits & (R_SIGMA_LOST | R_NO_MOTION_SENSOR)) != 0:
+        return 3, bits, sigma
+    if (bits & ~R_STANDSTILL) != 0:
+        return 2, bits, sigma
+    return 1, bits, sigma
+
+
+# ============================================================== initialisation (GROUND TRUTH)
+@njit(cache=True)
+def step_init(x, P, aux, cnt, cfg, ts, tg, t, s, v):
+    """(Re)initialise arc length and speed at time t.
+
+    First initialisation: every state and covariance from the configuration. Re-initialisation keeps
+    the learned sensor error states (biases, scale factor, GNSS error) and their covariance, and
+    resets only the rows/columns of s and v."""
+    if not (math.isfinite(t) and math.isfinite(s) and math.isfinite(v)) or abs(v) > 1000.0:
+        return O_INVALID
+    if aux[A_INIT] == 0.0:
+        x[:] = 0.0
+        P[:, :] = 0.0
+        P[BA, BA] = cfg[K_INIT_SIGMA_BA] ** 2
+        P[KO, KO] = cfg[K_INIT_SIGMA_KO] ** 2
+        P[GE, GE] = cfg[K_GM_SIGMA] ** 2
+        P[GN, GN] = cfg[K_GM_SIGMA] ** 2
+        P[BG, BG] = cfg[K_INIT_SIGMA_BG] ** 2
+    for i in range(NX):
+        P[S, i] = 0.0
+        P[i, S] = 0.0
+        P[V, i] = 0.0
+        P[i, V] = 0.0
+    x[S] = s
+    x[V] = v
+    P[S, S] = cfg[K_INIT_SIGMA_S] ** 2
+    P[V, V] = cfg[K_INIT_SIGMA_V] ** 2
+    grade = interp_at(ts, tg, s)
+    # until the first IMU sample the held force keeps the speed constant: f_x = b_a + g sin(theta)
+    aux[A_FX] = x[BA] + cfg[K_GRAVITY] * grade / math.sqrt(1.0 + grade * grade)
+    aux[A_T_STATE] = t
+    aux[A_T_IMU] = t
+    aux[A_T_ODO] = t
+    aux[A_T_GPS] = t
+    aux[A_T_INIT] = t
+    aux[A_INIT] = 1.0
+    aux[A_SLIP] = 0.0
+    aux[A_SLIP_BAD] = 0.0
+    aux[A_SLIP_GOOD] = 0.0
+    aux[A_CUSUM_P] = 0.0
+    aux[A_CUSUM_N] = 0.0
+    aux[A_GPS_HOLD] = -math.inf
+    aux[A_GPS_REJ] = 0.0
+    aux[A_STEP_FLAG] = 0.0
+    aux[A_LOGLIK] = 0.0
+    aux[A_STILL] = 0.0
+    aux[A_IMU_TO] = 0.0
+    aux[A_ODO_TO] = 0.0
+    aux[A_GPS_TO] = 0.0
+    cnt[C_INIT] += 1
+    condition_cov(P, cfg, cnt)
+    return O_INITIALISED
+
+
+# ============================================================== IMU
+@njit(cache=True)
+def step_imu(x, P, aux, cnt, cfg, ts, tg, tk, t, fx, fy, fz, wx, wy, wz):
+    """IMU sample at t: propagate with the previously held force, then hold this sample's force.
+
+    Also updates the standstill detector (EWMA mean/variance of f_x) and, when enabled, applies the
+    gyro update gz = v * curvature(s) + b_g."""
+    if not (
+        math.isfinite(t) and math.isfinite(fx) and math.isfinite(fy) and math.isfinite(fz)
+        and math.isfinite(wx) and math.isfinite(wy) and math.isfinite(wz)
+    ) or abs(fx) > 300.0 or abs(fy) > 300.0 or abs(fz) > 300.0 or abs(wz) > 100.0:
+        cnt[C_IMU_BAD] += 1
+        return O_INVALID
+    if aux[A_INIT] == 0.0:
+        cnt[C_NOT_INIT] += 1
+        return O_NOT_INIT
+    if aux[A_T_STATE] - t > cfg[K_LATE_TOL]:
+        cnt[C_IMU_LATE] += 1
+        return O_LATE
+    predict_to(x, P, aux, cnt, cfg, ts, tg, t)
+    dt_imu = t - aux[A_T_IMU]
+    alpha = dt_imu / cfg[K_FX_EWMA_TAU]
+    if alpha > 1.0 or cnt[C_IMU_OK] == 0:
+        alpha = 1.0
+    if alpha < 0.0:
+        alpha = 0.0
+    d = fx - aux[A_FX_MEAN]
+    aux[A_FX_MEAN] += alpha * d  # EWMA mean
+    aux[A_FX_VAR] = (1.0 - alpha) * (aux[A_FX_VAR] + alpha * d * d)  # EWMA variance
+    aux[A_FX] = fx
+    aux[A_GZ] = wz
+    aux[A_T_IMU] = t
+    cnt[C_IMU_OK] += 1
+    check_timeouts(aux, cnt, cfg, t)
+    if cfg[K_USE_GYRO] != 0.0 and abs(x[V]) >= cfg[K_GYRO_MIN_SPEED]:
+        H = np.zeros((2, NX))
+        R = np.zeros((2, 2))
+        y = np.zeros(2)
+        k = interp_at(ts, tk, x[S])
+        H[0, S] = x[V] * slope_at(ts, tk, x[S])  # d(v k(s))/ds
+        H[0, V] = k
+        H[0, BG] = 1.0
+        R[0, 0] = cfg[K_GYRO_SIGMA] ** 2
+        y[0] = wz - (x[V] * k + x[BG])  # y = gz - (v k(s) + b_g)
+        PHt, Sm, Si, nis, logdet = innovation(P, H, R, y, 1)
+        if nis <= cfg[K_GATE_GYRO]:
+            apply_update(x, P, H, R, y, 1, PHt, Si, cfg, cnt)
+            cnt[C_GYRO_OK] += 1
+        else:
+            cnt[C_GYRO_GATED] += 1
+    return O_ACCEPTED
+
+
+# ============================================================== odometer (+ slip detection, ZUPT)
+@njit(cache=True)
+def step_odo(x, P, aux, cnt, cfg, ts, tg, t, speed, sigma):
+    """Odometer speed z = v (1 + k_o) + noise with the sample's own sigma, slip/slide detection
+    against the IMU-propagated speed, and a zero-velocity update at detected standstill."""
+    if not (math.isfinite(t) and math.isfinite(speed) and math.isfinite(sigma)) or sigma <= 0.0 \
+            or abs(speed) > 300.0:
+        cnt[C_ODO_BAD] += 1
+        return O_INVALID
+    if aux[A_INIT] == 0.0:
+        cnt[C_NOT_INIT] += 1
+        return O_NOT_INIT
+    if aux[A_T_STATE] - t > cfg[K_LATE_TOL]:
+        cnt[C_ODO_LATE] += 1
+        return O_LATE
+    predict_to(x, P, aux, cnt, cfg, ts, tg, t)
+    check_timeouts(aux, cnt, cfg, t)
+    sig = max(sigma, cfg[K_ODO_SIGMA_MIN])
+    H = np.zeros((2, NX))
+    R = np.zeros((2, 2))
+    y = np.zeros(2)
+    H[0, V] = 1.0 + x[KO]  # dh/dv
+    H[0, KO] = x[V]  # dh/dk_o
+    R[0, 0] = sig * sig + cfg[K_ODO_QUANT] ** 2 / 12.0  # sample sigma^2 + quantisation
+    y[0] = speed - x[V] * (1.0 + x[KO])  # y = z - v (1 + k_o)
+    PHt, Sm, Si, nis, logdet = innovation(P, H, R, y, 1)
+    aux[A_LAST_NIS_ODO] = nis
+    imu_timely = (t - aux[A_T_IMU]) <= cfg[K_IMU_TIMEOUT]
+    still = (
+        abs(speed) < cfg[K_STILL_SPEED]
+        and imu_timely
+        and math.sqrt(max(aux[A_FX_VAR], 0.0)) < cfg[K_STILL_FX_STD]
+    )
+    aux[A_STILL] = 1.0 if still else 0.0
+    use = False
+    outcome = O_GATED
+    if nis > cfg[K_GATE_ODO]:
+        aux[A_SLIP_BAD] += 1.0
+        aux[A_SLIP_GOOD] = 0.0
+        cnt[C_ODO_GATED] += 1
+        if aux[A_SLIP] == 0.0 and aux[A_SLIP_BAD] >= cfg[K_SLIP_CONFIRM_N]:
+            aux[A_SLIP] = 1.0  # slip / slide declared
+            aux[A_SLIP_T0] = t
+            cnt[C_SLIP] += 1
+        elif aux[A_SLIP] != 0.0 and t - aux[A_SLIP_T0] > cfg[K_SLIP_MAX_S]:
+            # the odometer has disagreed for too long: trust it again, widening the speed variance
+            P[V, V] += y[0] * y[0]
+            PHt, Sm, Si, nis, logdet = innovation(P, H, R, y, 1)
+            use = True
+            aux[A_SLIP] = 0.0
+            aux[A_SLIP_BAD] = 0.0
+            cnt[C_ODO_REANCHOR] += 1
+    elif aux[A_SLIP] != 0.0:
+        aux[A_SLIP_GOOD] += 1.0
+        if aux[A_SLIP_GOOD] >= cfg[K_SLIP_RELEASE_N]:
+            aux[A_SLIP] = 0.0
+            aux[A_SLIP_BAD] = 0.0
+            use = True
+        else:
+            cnt[C_ODO_GATED] += 1
+    else:
+        aux[A_SLIP_BAD] = 0.0
+        use = True
+    if use:
+        if apply_update(x, P, H, R, y, 1, PHt, Si, cfg, cnt):
+            cnt[C_ODO_OK] += 1
+            aux[A_T_ODO] = t
+            outcome = O_ACCEPTED
+    if still:
+        # zero-velocity pseudo-measurement: z = 0 = v + noise(zupt_sigma)
+        H[0, :] = 0.0
+        H[0, V] = 1.0
+        R[0, 0] = cfg[K_ZUPT_SIGMA] ** 2
+        y[0] = -x[V]
+        PHt, Sm, Si, nis, logdet = innovation(P, H, R, y, 1)
+        if nis <= cfg[K_GATE_ZUPT]:
+            if apply_update(x, P, H, R, y, 1, PHt, Si, cfg, cnt):
+                cnt[C_ZUPT] += 1
+    return outcome
+
+
+# ============================================================== GNSS
+@njit(cache=True)
+def gps_model(x, ts, te, tn, dl):
+    """h(x) = point_at(s - v dl) + (e_gnss, n_gnss) and its Jacobian rows (2 x NX).
+
+    dl >= 0 is how much older the fix is than the state (late-fix back-propagation; 0 normally)."""
+    s_eval = x[S] - x[V] * dl
+    e, n, de, dn = geom_at(ts, te, tn, s_eval)
+    H = np.zeros((2, NX))
+    H[0, S] = de  # dh/ds = tangent
+    H[1, S] = dn
+    H[0, V] = -dl * de
+    H[1, V] = -dl * dn
+    H[0, GE] = 1.0
+    H[1, GN] = 1.0
+    return e + x[GE], n + x[GN], H, de, dn
+
+
+@njit(cache=True)
+def step_gps(x, P, aux, cnt, cfg, ts, te, tn, tg, t, east, north, sigma_h, fix_quality):
+    """GNSS fix at t, already in the database's local metric frame (east, north) [m].
+
+    sigma_h <= 0 or NaN: not reported; fix_quality < 0: not reported; 0: no fix."""
+    if fix_quality == 0:
+        cnt[C_GPS_NOFIX] += 1
+        return O_NO_FIX
+    if not (math.isfinite(t) and math.isfinite(east) and math.isfinite(north)) \
+            or abs(east) > 1e7 or abs(north) > 1e7 or (math.isfinite(sigma_h) and sigma_h > 1e4) \
+            or math.isinf(sigma_h):
+        cnt[C_GPS_BAD] += 1
+        return O_INVALID
+    if aux[A_INIT] == 0.0:
+        cnt[C_NOT_INIT] += 1
+        return O_NOT_INIT
+    dl = aux[A_T_STATE] - t
+    if dl > cfg[K_GPS_LATE_MAX]:
+        cnt[C_GPS_LATE] += 1
+        return O_LATE
+    if dl <= 0.0:
+        predict_to(x, P, aux, cnt, cfg, ts, tg, t)
+        dl = 0.0
+    check_timeouts(aux, cnt, cfg, max(t, aux[A_T_STATE]))
+    he, hn, H, de, dn = gps_model(x, ts, te, tn, dl)
+    y = np.zeros(2)
+    y[0] = east - he  # y = z - h(x)
+    y[1] = north - hn
+    # white noise: the preset's white sigma, scaled up when the receiver reports a worse sigma_h
+    sw = cfg[K_GPS_WHITE]
+    if math.isfinite(sigma_h) and sigma_h > 0.0 and sigma_h > cfg[K_GPS_NOMINAL_SIGMA_H]:
+        sw *= sigma_h / cfg[K_GPS_NOMINAL_SIGMA_H]
+    tnorm = math.sqrt(de * de + dn * dn)
+    ue = de / tnorm
+    un = dn / tnorm
+    # R = sw^2 I + sigma_lat^2 n n' (n = unit normal to the track: digitisation/lateral offset)
+    sl2 = cfg[K_TRACK_LAT] ** 2
+    R = np.zeros((2, 2))
+    R[0, 0] = sw * sw + sl2 * un * un
+    R[1, 1] = sw * sw + sl2 * ue * ue
+    R[0, 1] = -sl2 * ue * un
+    R[1, 0] = R[0, 1]
+    if dl > 0.0:  # a late fix also carries the speed noise over dl: q dl^3 / 3 along the tangent
+        qa = cfg[K_Q_ACC] * dl * dl * dl / 3.0
+        R[0, 0] += qa * ue * ue
+        R[1, 1] += qa * un * un
+        R[0, 1] += qa * ue * un
+        R[1, 0] += qa * ue * un
+    PHt, Sm, Si, nis, logdet = innovation(P, H, R, y, 2)
+    aux[A_LAST_NIS_GPS] = nis
+    # robust log-likelihood for competing line hypotheses
+    aux[A_LOGLIK] += -0.5 * (min(nis, cfg[K_GPS_MAX_LOGLIK_NIS]) + logdet + 2.0 * LOG_2PI)
+    along = y[0] * ue + y[1] * un  # along-track component of the innovation [m]
+    if t < aux[A_GPS_HOLD]:
+        cnt[C_GPS_HELD] += 1
+        return O_HELD_OFF
+    if nis > cfg[K_GATE_GPS]:
+        cnt[C_GPS_GATED] += 1
+        aux[A_GPS_REJ] += 1.0
+        if aux[A_GPS_REJ] == 1.0:
+            aux[A_T_FIRST_GPS_REJ] = t
+            aux[A_REJ_DS] = along
+            aux[A_REJ_MAXDEV] = 0.0
+            if math.sqrt(y[0] * y[0] + y[1] * y[1]) >= cfg[K_STEP_MIN_M]:
+                aux[A_STEP_FLAG] = 1.0  # a jump: large innovation after accepted fixes
+                cnt[C_STEP] += 1
+        else:
+            aux[A_REJ_MAXDEV] = max(aux[A_REJ_MAXDEV], abs(along - aux[A_REJ_DS]))
+        if t - aux[A_T_FIRST_GPS_REJ] >= cfg[K_REACQ_S] and aux[A_REJ_MAXDEV] <= cfg[K_REACQ_CONSIST_M]:
+            # GNSS has been self-consistent and away from the estimate for long: the estimate is the
+            # one that is wrong. Widen the arc-length variance by the residual and accept.
+            P[S, S] += along * along + y[0] * y[0] + y[1] * y[1]
+            PHt, Sm, Si, nis, logdet = innovation(P, H, R, y, 2)
+            if apply_update(x, P, H, R, y, 2, PHt, Si, cfg, cnt):
+                cnt[C_GPS_REACQ] += 1
+                aux[A_GPS_REJ] = 0.0
+                aux[A_STEP_FLAG] = 0.0
+                aux[A_T_GPS] = t
+                aux[A_GPS_E] = east
+                aux[A_GPS_N] = north
+                return O_ACCEPTED
+        elif t - aux[A_T_FIRST_GPS_REJ] >= cfg[K_REACQ_S]:
+            # inconsistent rejected fixes: start a new run from this fix
+            aux[A_GPS_REJ] = 1.0
+            aux[A_T_FIRST_GPS_REJ] = t
+            aux[A_REJ_DS] = along
+            aux[A_REJ_MAXDEV] = 0.0
+        return O_GATED
+    # ramp detection: two-sided CUSUM of the normalised along-track innovation
+    s_along = ue * (Sm[0, 0] * ue + Sm[0, 1] * un) + un * (Sm[1, 0] * ue + Sm[1, 1] * un)
+    r = along / math.sqrt(s_along)
+    k = cfg[K_CUSUM_K]
+    aux[A_CUSUM_P] = max(0.0, aux[A_CUSUM_P] + r - k)
+    aux[A_CUSUM_N] = max(0.0, aux[A_CUSUM_N] - r - k)
+    if aux[A_CUSUM_P] > cfg[K_CUSUM_H] or aux[A_CUSUM_N] > cfg[K_CUSUM_H]:
+        cnt[C_RAMP] += 1
+        aux[A_RAMP_T] = t
+        aux[A_GPS_HOLD] = t + cfg[K_GPS_HOLDOFF_S]
+        aux[A_CUSUM_P] = 0.0
+        aux[A_CUSUM_N] = 0.0
+        cnt[C_GPS_GATED] += 1
+        return O_GATED
+    if not apply_update(x, P, H, R, y, 2, PHt, Si, cfg, cnt):
+        cnt[C_GPS_BAD] += 1
+        return O_INVALID
+    aux[A_GPS_REJ] = 0.0
+    aux[A_STEP_FLAG] = 0.0
+    aux[A_T_GPS] = t
+    aux[A_GPS_E] = east
+    aux[A_GPS_N] = north
+    cnt[C_GPS_OK] += 1
+    if dl > 0.0:
+        cnt[C_GPS_LATE_USED] += 1
+    return O_ACCEPTED

@@ -1,0 +1,221 @@
+"""Named indices of the filter's flat arrays (state, auxiliary scalars, counters, configuration).
+
+The compiled kernels (``sfa.kernels``) work on plain float64/int64 arrays so that the per-message
+path (``TrackFilter.process``) and the batch replay path (``sfa.batch``) run the very same code with
+no Python object in the inner loop. This module is the single place that names every slot.
+Pure constants only: importing it is cheap (no numba, no numpy).
+"""
+
+from __future__ import annotations
+
+from enum import IntEnum
+
+# ---------------------------------------------------------------- state vector x (float64[NX])
+S = 0  #: arc length along the current line [m]
+V = 1  #: speed along the track, positive towards increasing arc length [m/s]
+BA = 2  #: along-track accelerometer bias (incl. pitch misalignment) [m/s^2]
+KO = 3  #: odometer scale-factor error: odometer reads v * (1 + KO) [dimensionless]
+GE = 4  #: GNSS correlated (first-order Gauss-Markov) error, east [m]
+GN = 5  #: GNSS correlated (first-order Gauss-Markov) error, north [m]
+BG = 6  #: gyro z bias [rad/s] (observed only when the gyro update is enabled)
+NX = 7
+
+STATE_NAMES = (
+    "s_m", "v_mps", "accel_bias_mps2", "odo_scale", "gnss_east_m", "gnss_north_m", "gyro_bias_radps",
+)
+
+# ---------------------------------------------------------------- auxiliary scalars aux (float64[NAUX])
+A_T_STATE = 0  #: time the state refers to [s]
+A_T_IMU = 1  #: time of the last accepted IMU sample [s]
+A_T_ODO = 2  #: time of the last accepted odometer sample [s]
+A_T_GPS = 3  #: time of the last accepted GPS fix [s]
+A_FX = 4  #: held along-track specific force from the last IMU sample [m/s^2]
+A_INIT = 5  #: 1 once initialised
+A_SLIP = 6  #: 1 while an odometer slip/slide is declared
+A_SLIP_BAD = 7  #: consecutive odometer samples outside the gate
+A_SLIP_GOOD = 8  #: consecutive odometer samples back inside the gate while a slip is declared
+A_CUSUM_P = 9  #: GNSS ramp CUSUM, positive side [sigma]
+A_CUSUM_N = 10  #: GNSS ramp CUSUM, negative side [sigma]
+A_GPS_HOLD = 11  #: GNSS fixes are held off (not used) until this time [s]
+A_GPS_REJ = 12  #: consecutive GNSS fixes rejected by the gate
+A_FX_MEAN = 13  #: exponentially weighted mean of the IMU forward specific force [m/s^2]
+A_FX_VAR = 14  #: exponentially weighted variance of the IMU forward specific force [m^2/s^4]
+A_STILL = 15  #: 1 while standstill is detected
+A_GZ = 16  #: held gyro z rate [rad/s]
+A_SLIP_T0 = 17  #: time the current slip was declared [s]
+A_LOGLIK = 18  #: cumulative GNSS log-likelihood (hypothesis scoring at junctions)
+A_LAST_NIS_GPS = 19  #: last GNSS normalised innovation squared
+A_LAST_NIS_ODO = 20  #: last odometer normalised innovation squared
+A_T_FIRST_GPS_REJ = 21  #: time of the first fix of the current rejection run [s]
+A_T_INIT = 22  #: time of the last (re)initialisation [s]
+A_STEP_FLAG = 23  #: 1 while the current GNSS rejection run was classified as a step
+A_RAMP_T = 24  #: time of the last ramp detection [s]
+A_IMU_TO = 25  #: 1 while the IMU is timed out (for counting transitions)
+A_ODO_TO = 26  #: 1 while the odometer is timed out
+A_GPS_TO = 27  #: 1 while GNSS is timed out
+A_GPS_E = 28  #: last GNSS fix, local east [m] (for the re-acquisition consistency test)
+A_GPS_N = 29  #: last GNSS fix, local north [m]
+A_REJ_DS = 30  #: along-track residual of the first fix of the current rejection run [m]
+A_REJ_MAXDEV = 31  #: largest change of that residual within the run [m]
+NAUX = 32
+
+# ---------------------------------------------------------------- counters cnt (int64[NCNT])
+C_IMU_OK = 0
+C_IMU_LATE = 1
+C_IMU_BAD = 2
+C_ODO_OK = 3
+C_ODO_GATED = 4
+C_ODO_LATE = 5
+C_ODO_BAD = 6
+C_GPS_OK = 7
+C_GPS_GATED = 8
+C_GPS_LATE = 9
+C_GPS_BAD = 10
+C_GPS_NOFIX = 11
+C_ZUPT = 12
+C_SLIP = 13
+C_STEP = 14
+C_RAMP = 15
+C_IMU_TIMEOUT = 16
+C_ODO_TIMEOUT = 17
+C_GPS_TIMEOUT = 18
+C_INIT = 19
+C_COV_REPAIR = 20
+C_NOT_INIT = 21
+C_GPS_HELD = 22
+C_GPS_REACQ = 23
+C_ODO_REANCHOR = 24
+C_GYRO_OK = 25
+C_GYRO_GATED = 26
+C_GPS_LATE_USED = 27
+NCNT = 28
+
+COUNTER_NAMES = (
+    "imu_accepted", "imu_late", "imu_invalid",
+    "odo_accepted", "odo_gated", "odo_late", "odo_invalid",
+    "gps_accepted", "gps_gated", "gps_late", "gps_invalid", "gps_no_fix",
+    "zupt_updates", "slip_detections", "gnss_step_detections", "gnss_ramp_detections",
+    "imu_timeouts", "odo_timeouts", "gps_timeouts",
+    "initialisations", "covariance_repairs", "not_initialised",
+    "gps_held_off", "gps_reacquisitions", "odo_reanchors",
+    "gyro_accepted", "gyro_gated", "gps_late_applied",
+)
+assert len(COUNTER_NAMES) == NCNT
+
+# ---------------------------------------------------------------- configuration vector cfg (float64[NCFG])
+K_Q_ACC = 0  #: accelerometer white noise PSD incl. model noise [m^2/s^3]
+K_Q_BA = 1  #: accelerometer bias random walk PSD [m^2/s^5]
+K_Q_KO = 2  #: odometer scale random walk PSD [1/s]
+K_GM_SIGMA = 3  #: GNSS Gauss-Markov steady sigma per axis [m]
+K_GM_TAU = 4  #: GNSS Gauss-Markov correlation time [s]
+K_Q_BG = 5  #: gyro bias random walk PSD [rad^2/s^3]
+K_GPS_WHITE = 6  #: GNSS white noise per axis at the nominal reported sigma [m]
+K_GPS_NOMINAL_SIGMA_H = 7  #: sigma_h the receiver reports in nominal conditions [m]
+K_TRACK_LAT = 8  #: cross-track uncertainty of the digitised track [m]
+K_ODO_QUANT = 9  #: odometer quantisation step [m/s]
+K_ODO_SIGMA_MIN = 10  #: floor on the odometer sigma [m/s]
+K_GATE_ODO = 11  #: chi-square gate, 1 dof [NIS]
+K_GATE_GPS = 12  #: chi-square gate, 2 dof [NIS]
+K_GATE_GYRO = 13  #: chi-square gate, 1 dof [NIS]
+K_GATE_ZUPT = 14  #: chi-square gate, 1 dof [NIS]
+K_GRAVITY = 15  #: gravity [m/s^2]
+K_MAX_DT = 16  #: longest single prediction step [s]
+K_IMU_TIMEOUT = 17  #: [s]
+K_ODO_TIMEOUT = 18  #: [s]
+K_GPS_TIMEOUT = 19  #: [s]
+K_Q_NO_IMU = 20  #: acceleration PSD used while the IMU is timed out [m^2/s^3]
+K_ZUPT_SIGMA = 21  #: zero-velocity pseudo-measurement sigma [m/s]
+K_STILL_SPEED = 22  #: odometer speed below which standstill may be declared [m/s]
+K_STILL_FX_STD = 23  #: IMU forward specific-force std below which standstill may be declared [m/s^2]
+K_FX_EWMA_TAU = 24  #: time constant of the IMU mean/variance estimator [s]
+K_SLIP_CONFIRM_N = 25  #: consecutive gated odometer samples that declare a slip
+K_SLIP_RELEASE_N = 26  #: consecutive in-gate samples that end it
+K_SLIP_MAX_S = 27  #: longest slip before the odometer is re-anchored [s]
+K_STEP_MIN_M = 28  #: smallest GNSS innovation classified as a step [m]
+K_CUSUM_K = 29  #: CUSUM drift allowance [sigma]
+K_CUSUM_H = 30  #: CUSUM decision threshold [sigma]
+K_GPS_HOLDOFF_S = 31  #: GNSS hold-off after a ramp detection [s]
+K_REACQ_S = 32  #: duration of consistent GNSS rejections that re-anchors the position [s]
+K_REACQ_CONSIST_M = 33  #: largest drift of the rejected residual still counted as consistent [m]
+K_GPS_LATE_MAX = 34  #: oldest GNSS fix still applied by back-propagation [s]
+K_USE_GYRO = 35  #: 1 to use gz = v * curvature(s) + b_g
+K_GYRO_SIGMA = 36  #: gyro white noise per sample incl. model error [rad/s]
+K_GYRO_MIN_SPEED = 37  #: smallest speed for the gyro update [m/s]
+K_Z_INTERVAL = 38  #: two-sided normal quantile of the confidence interval [-]
+K_DEGRADED_SIGMA = 39  #: sigma_s above which the status is DEGRADED [m]
+K_LOST_SIGMA = 40  #: sigma_s above which the status is LOST [m]
+K_P_MIN_VAR = 41  #: smallest variance kept on the diagonal [unit^2]
+K_INIT_SIGMA_S = 42  #: [m]
+K_INIT_SIGMA_V = 43  #: [m/s]
+K_INIT_SIGMA_BA = 44  #: [m/s^2]
+K_INIT_SIGMA_KO = 45  #: [-]
+K_INIT_SIGMA_BG = 46  #: [rad/s]
+K_LATE_TOL = 47  #: measurements older than the state by less than this are treated as simultaneous [s]
+K_GPS_MAX_LOGLIK_NIS = 48  #: NIS cap when scoring hypotheses (robust likelihood) [NIS]
+NCFG = 49
+
+# ---------------------------------------------------------------- measurement kinds and result codes
+M_IMU = 1
+M_ODO = 2
+M_GPS = 3
+M_INIT = 8
+
+
+class Outcome(IntEnum):
+    """What ``process`` did with one measurement."""
+
+    ACCEPTED = 0  #: used by the filter
+    GATED = 1  #: rejected by the chi-square innovation gate (or a declared slip / GNSS fault)
+    LATE = 2  #: older than the filter state beyond the late-data policy: dropped and counted
+    INVALID = 3  #: non-finite or out-of-range values: rejected and counted
+    NOT_INITIALISED = 4  #: arrived before the first GROUND TRUTH / initialisation
+    NO_FIX = 5  #: GNSS fix quality 0: carries no position
+    INITIALISED = 6  #: GROUND TRUTH (re)initialised the state
+    HELD_OFF = 7  #: GNSS fix not used during a hold-off after a ramp detection
+
+
+# reason bits reported with the status
+R_NOT_INIT = 1 << 0
+R_IMU_TIMEOUT = 1 << 1
+R_ODO_TIMEOUT = 1 << 2
+R_GPS_TIMEOUT = 1 << 3
+R_SLIP = 1 << 4
+R_GNSS_STEP = 1 << 5
+R_GNSS_RAMP = 1 << 6
+R_SIGMA_HIGH = 1 << 7
+R_SIGMA_LOST = 1 << 8
+R_NO_MOTION_SENSOR = 1 << 9
+R_STANDSTILL = 1 << 10
+R_GNSS_REJECTING = 1 << 11
+
+REASON_NAMES = {
+    R_NOT_INIT: "not_initialised",
+    R_IMU_TIMEOUT: "imu_timeout",
+    R_ODO_TIMEOUT: "odometer_timeout",
+    R_GPS_TIMEOUT: "gnss_timeout",
+    R_SLIP: "odometer_slip",
+    R_GNSS_STEP: "gnss_step",
+    R_GNSS_RAMP: "gnss_ramp",
+    R_SIGMA_HIGH: "sigma_high",
+    R_SIGMA_LOST: "sigma_too_high",
+    R_NO_MOTION_SENSOR: "no_motion_sensor",
+    R_STANDSTILL: "standstill",
+    R_GNSS_REJECTING: "gnss_rejected",
+}
+
+#: reasons that are informative only (do not degrade the status)
+INFO_REASONS = R_STANDSTILL
+
+
+class FilterStatus(IntEnum):
+    """Integrity status of the estimate."""
+
+    INITIALISING = 0  #: no GROUND TRUTH (or other initialisation) yet
+    NOMINAL = 1  #: all sensors timely, no fault declared, sigma small
+    DEGRADED = 2  #: usable but a sensor is missing or faulty, or sigma is above the degraded threshold
+    LOST = 3  #: the interval is too wide to be useful, or no motion sensor is left
+
+
+def reasons_from_bits(bits: int) -> tuple[str, ...]:
+    """Short reason strings, in a fixed order, for a reason bit mask."""
+    return tuple(name for bit, name in REASON_NAMES.items() if bits & bit)

@@ -1,0 +1,59 @@
+"""Filter configurations matching the simulator's sensor presets.
+
+Built from the very objects the simulator draws its errors from (``interface_modules.presets``), so a
+scenario's sensors and the filter tuned for them cannot drift apart.
+"""
+
+from __future__ import annotations
+
+import math
+
+from sfa.config import FilterConfig
+from sfa.errors import FilterConfigError
+
+
+def filter_config_for(
+    imu: str = "mems-train", odometer: str = "wheel-odometer", gps: str = "standalone", **overrides: object
+) -> FilterConfig:
+    """FilterConfig for a combination of the simulator's IMU, odometer and GPS presets.
+
+    ``overrides`` replace individual fields afterwards (validated like any FilterConfig).
+    """
+    from interface_modules.presets import GPS_PRESETS, IMU_PRESETS, ODOMETER_PRESETS
+
+    try:
+        imu_spec = IMU_PRESETS[imu]
+        odo_spec = ODOMETER_PRESETS[odometer]
+        gps_spec = GPS_PRESETS[gps]
+    except KeyError as exc:
+        raise FilterConfigError(
+            f"unknown sensor preset {exc.args[0]!r}; IMU {sorted(IMU_PRESETS)}, odometer "
+            f"{sorted(ODOMETER_PRESETS)}, GPS {sorted(GPS_PRESETS)}"
+        ) from None
+    g = 9.80665
+    # a constant pitch misalignment reads as an along-track bias g * sin(misalignment)
+    pitch_bias = g * math.sin(imu_spec.misalignment_sigma)
+    # unmodelled along-track acceleration: scale error on ~1 m/s^2 and yaw misalignment leaking
+    # ~2 m/s^2 of centripetal force, both correlated over ~10 s: PSD ~ sigma^2 * 2 tau
+    unmodelled_sigma = math.hypot(imu_spec.accel_scale_sigma * 1.0, imu_spec.misalignment_sigma * 2.0)
+    model_psd = unmodelled_sigma ** 2 * 2.0 * 10.0
+    quant = imu_spec.accel_lsb / math.sqrt(12.0) / math.sqrt(imu_spec.rate_hz)
+    cfg = FilterConfig(
+        accel_noise_density_mps2_rthz=math.hypot(imu_spec.accel_noise_density, quant),
+        accel_model_noise_mps2_rthz=max(math.sqrt(model_psd), 0.01),
+        accel_bias_rw_mps2_rts=imu_spec.accel_bias_rw,
+        init_sigma_accel_bias_mps2=math.hypot(imu_spec.accel_bias_sigma, pitch_bias),
+        gyro_bias_rw_radps_rts=imu_spec.gyro_bias_rw,
+        init_sigma_gyro_bias_radps=imu_spec.gyro_bias_sigma,
+        init_sigma_odo_scale=odo_spec.scale_sigma,
+        odo_quant_mps=odo_spec.lsb_mps,
+        gps_white_sigma_m=gps_spec.white_sigma_m,
+        gps_gm_sigma_m=gps_spec.gm_sigma_m,
+        gps_gm_tau_s=gps_spec.gm_tau_s,
+        gps_nominal_sigma_h_m=gps_spec.reported_sigma_h_m,
+        gps_timeout_s=max(3.0, 3.0 / gps_spec.rate_hz),
+        odo_timeout_s=max(0.5, 10.0 / odo_spec.rate_hz),
+        imu_timeout_s=max(0.2, 20.0 / imu_spec.rate_hz),
+        track_lateral_sigma_m=min(0.3, 3.0 * gps_spec.white_sigma_m),
+    )
+    return cfg.replace(**overrides) if overrides else cfg
