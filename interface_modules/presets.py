@@ -53,6 +53,11 @@ class OdometerSpec:
     scale_sigma: float  #: constant scale-factor error, 1-sigma [fraction]
     lsb_mps: float  #: quantisation step [m/s]
     slip_prone: bool  #: wheel-based (slips in traction, slides in braking) or not (radar)
+    slip_rate_per_h: float = (
+        0.0  #: rate of spontaneous slip/slide episodes while accelerating or braking [1/h]
+    )
+    slip_max_fraction: float = 0.0  #: largest spontaneous slip/slide speed error [fraction of speed]
+    dropout_prob: float = 0.0  #: probability that a sample is not sent [-]
 
 
 @dataclass(frozen=True)
@@ -67,6 +72,8 @@ class GpsSpec:
     reported_sigma_h_m: float  #: sigma_h the receiver reports in the datagram [m]
     fix_quality: int  #: NMEA GGA quality when a fix is available (1 GPS, 2 DGPS, 4 RTK fixed)
     num_sv_mean: int  #: typical satellites used
+    reacquire_s: float = 3.0  #: time without a fix after an outage ends (hot start) [s]
+    num_sv_sigma: float = 2.0  #: variation of the satellite count, 1-sigma [-]
 
 
 IMU_PRESETS: dict[str, ImuSpec] = {
@@ -108,6 +115,11 @@ ODOMETER_PRESETS: dict[str, OdometerSpec] = {
         scale_sigma=0.01,
         lsb_mps=0.01,
         slip_prone=True,
+        # low-adhesion episodes: a few per hour of traction/braking in autumn conditions (RSSB
+        # "Adhesion" research programme); wheel slide protection limits them to ~10-20 % creep
+        slip_rate_per_h=6.0,
+        slip_max_fraction=0.15,
+        dropout_prob=1e-4,
     ),
     "doppler-radar": OdometerSpec(
         rate_hz=20.0,
@@ -116,6 +128,8 @@ ODOMETER_PRESETS: dict[str, OdometerSpec] = {
         scale_sigma=0.002,
         lsb_mps=0.005,
         slip_prone=False,
+        # radars lose the ground echo occasionally (standing water, snow, ballast-free track)
+        dropout_prob=1e-3,
     ),
 }
 

@@ -1,0 +1,130 @@
+"""IMU model: specific force and angular rate in the FRD body frame, with a MEMS error model.
+
+Error-free values at sample ``j`` (sampling time ``t_j``, covering ``[t_j, t_j + 1/rate)``):
+
+- ``ax = a_mean + g sin(theta)``: ``a_mean`` is the truth's mean acceleration over the sample
+  interval (the truth's constant step acceleration when the IMU runs at the truth rate), ``theta =
+  atan(grade)`` in the direction of travel at ``s(t_j)``. Integrating ``ax - g sin(theta)`` with the
+  truth's scheme (see ``motion``) reproduces the truth's speed and arc length.
+- ``ay = v^2 k`` (centripetal, ``k`` signed curvature in the direction of travel, > 0 right turn),
+- ``az = -g cos(theta) - v^2 dtheta/dx`` (vertical curves; a level IMU at rest reads ``-g``),
+- ``gx = 0`` (cant is not modelled: the track database carries no superelevation),
+  ``gy = v dtheta/dx`` (pitch rate), ``gz = v k`` (yaw rate).
+
+Errors, per axis, in this order: mounting misalignment (a fixed small rotation, angles ~
+N(0, misalignment_sigma)), scale error ``(1 + N(0, scale_sigma))``, turn-on bias ~ N(0, bias_sigma),
+bias random walk (increments N(0, bias_rw^2 / rate)), white noise N(0, density^2 * rate), configured
+bias steps, quantisation to the LSB, then stuck episodes (repeat the last output).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..errors import ScenarioError
+from ..faults import IMU_AXES, Fault, stuck_indices
+from ..motion import Trajectory
+from ..presets import G_MPS2, ImuSpec
+from .stream import SampleStream
+
+#: step of the central difference used for dtheta/ds [m]
+PITCH_DIFF_STEP_M = 0.5
+
+
+def decimation(truth_rate_hz: float, rate_hz: float, what: str) -> int:
+    """Truth samples per sensor sample; the sensor rate must divide the truth rate."""
+    n = truth_rate_hz / rate_hz
+    if rate_hz <= 0 or abs(n - round(n)) > 1e-9 or round(n) < 1:
+        raise ScenarioError(f"{what} rate {rate_hz} Hz must divide the truth rate {truth_rate_hz} Hz")
+    return int(round(n))
+
+
+def rotation_from_angles(angles_rad: np.ndarray) -> np.ndarray:
+    """Rotation matrix of the rotation vector ``angles_rad`` (Rodrigues)."""
+    theta = float(np.linalg.norm(angles_rad))
+    if theta < 1e-15:
+        return np.eye(3)
+    k = angles_rad / theta
+    kx = np.array([[0.0, -k[2], k[1]], [k[2], 0.0, -k[0]], [-k[1], k[0], 0.0]])
+    return np.eye(3) + np.sin(theta) * kx + (1.0 - np.cos(theta)) * (kx @ kx)
+
+
+def true_imu(traj: Trajectory, track, decim: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Error-free (t_s, specific force (n, 3), rates (n, 3)) at every ``decim``-th truth sample."""
+    n = traj.t_s.size // decim
+    idx = np.arange(n) * decim
+    t = traj.t_s[idx]
+    s = traj.s_m[idx]
+    v = traj.v_mps[idx]
+    d = traj.direction[idx].astype(float)
+    a_mean = traj.a_mps2[: n * decim].reshape(n, decim).mean(axis=1)
+    grade = np.asarray(track.grade_at(s), dtype=float)
+    theta = np.arctan(d * grade)
+    h = PITCH_DIFF_STEP_M
+    lo = np.clip(s - h, 0.0, track.length_m)
+    hi = np.clip(s + h, 0.0, track.length_m)
+    span = np.maximum(hi - lo, 1e-9)
+    dtheta_ds = np.arctan(np.asarray(track.grade_at(hi), float)) - np.arctan(
+        np.asarray(track.grade_at(lo), float)
+    )
+    dtheta_dx = dtheta_ds / span  # d(d*theta)/d(d*s): the sign of travel cancels
+    k = d * np.asarray(track.curvature_at(s), dtype=float)
+    f = np.column_stack(
+        (a_mean + G_MPS2 * np.sin(theta), v * v * k, -G_MPS2 * np.cos(theta) - v * v * dtheta_dx)
+    )
+    w = np.column_stack((np.zeros(n), v * dtheta_dx, v * k))
+    return t, f, w
+
+
+def simulate_imu(
+    traj: Trajectory,
+    track,
+    spec: ImuSpec,
+    rate_hz: float,
+    faults: list[Fault],
+    rng: np.random.Generator,
+    truth_rate_hz: float,
+) -> SampleStream:
+    """IMU samples with errors (see module doc)."""
+    decim = decimation(truth_rate_hz, rate_hz, "IMU")
+    t, f_true, w_true = true_imu(traj, track, decim)
+    n = t.size
+    dt = 1.0 / rate_hz
+    # draw order is fixed: misalignment, scales, turn-on biases, random walks, white noise
+    c_mis = rotation_from_angles(rng.normal(0.0, spec.misalignment_sigma, 3))
+    acc_scale = 1.0 + rng.normal(0.0, spec.accel_scale_sigma, 3)
+    gyr_scale = 1.0 + rng.normal(0.0, spec.gyro_scale_sigma, 3)
+    acc_b0 = rng.normal(0.0, spec.accel_bias_sigma, 3)
+    gyr_b0 = rng.normal(0.0, spec.gyro_bias_sigma, 3)
+    acc_rw = np.cumsum(rng.normal(0.0, spec.accel_bias_rw * np.sqrt(dt), (n, 3)), axis=0)
+    gyr_rw = np.cumsum(rng.normal(0.0, spec.gyro_bias_rw * np.sqrt(dt), (n, 3)), axis=0)
+    acc_w = rng.normal(0.0, spec.accel_noise_density * np.sqrt(rate_hz), (n, 3))
+    gyr_w = rng.normal(0.0, spec.gyro_noise_density * np.sqrt(rate_hz), (n, 3))
+    f = (f_true @ c_mis.T) * acc_scale + acc_b0 + acc_rw + acc_w
+    w = (w_true @ c_mis.T) * gyr_scale + gyr_b0 + gyr_rw + gyr_w
+    meas = np.hstack((f, w))
+    events: list[tuple[float, str, str]] = []
+    for fault in faults:
+        if fault.kind == "imu_bias_step":
+            col = IMU_AXES.index(fault.axis)
+            meas[fault.active(t), col] += fault.value
+            events.append((float(fault.start_s), "imu_bias_step", f"{fault.axis} {fault.value:+g}"))
+            if fault.end_s is not None:
+                events.append((float(fault.end_s), "imu_bias_step_end", fault.axis))
+    meas[:, :3] = quantise(meas[:, :3], spec.accel_lsb)
+    meas[:, 3:] = quantise(meas[:, 3:], spec.gyro_lsb)
+    stuck = [fl for fl in faults if fl.kind == "stuck"]
+    if stuck:
+        meas = meas[stuck_indices(t, stuck)]
+    values = {name: meas[:, i].copy() for i, name in enumerate(IMU_AXES)}
+    truth = {name: col for name, col in zip(IMU_AXES, np.hstack((f_true, w_true)).T, strict=True)}
+    truth["acc_bias_turn_on"] = acc_b0
+    truth["gyro_bias_turn_on"] = gyr_b0
+    return SampleStream("imu", t, values, np.ones(n, dtype=bool), events, truth)
+
+
+def quantise(x: np.ndarray, lsb: float) -> np.ndarray:
+    """Round to the nearest multiple of ``lsb`` (no quantisation when ``lsb <= 0``)."""
+    if lsb <= 0:
+        return x
+    return np.round(x / lsb) * lsb

