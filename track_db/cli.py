@@ -1,0 +1,259 @@
+"""``sfa track``: import, info, export, locate. Standard library only at module level."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    sub = parser.add_subparsers(dest="track_command", metavar="SUBCOMMAND")
+    sub.required = True
+
+    p = sub.add_parser(
+        "import",
+        help="digitise a track (GeoJSON, GTFS shapes, CSV) into an SQLite track database",
+        description="Import lines into a track database. One transaction: on any error nothing is written.",
+    )
+    p.add_argument(
+        "src", metavar="SRC", help="GeoJSON file, GTFS directory or .zip, or CSV file (lat,lon[,alt])"
+    )
+    p.add_argument("-o", "--output", required=True, metavar="TRACK.db", help="track database to create")
+    p.add_argument(
+        "--format", choices=("geojson", "gtfs", "csv"), help="source format (default: from the name)"
+    )
+    p.add_argument(
+        "--route", metavar="NAME", help="GTFS route (short/long name or id); GeoJSON feature ref/name/id"
+    )
+    p.add_argument("--shape", metavar="ID", help="GTFS shape_id to import")
+    p.add_argument("--name", metavar="LINE", help="name of the line (when the source gives exactly one)")
+    p.add_argument("--attribution", metavar="TEXT", help="attribution statement (default: from the source)")
+    p.add_argument(
+        "--max-gap-m",
+        type=float,
+        default=1000.0,
+        metavar="M",
+        help="reject vertices further apart (default 1000)",
+    )
+    p.add_argument(
+        "--append", action="store_true", help="add the lines to an existing database (its settings are kept)"
+    )
+    p.add_argument("--force", action="store_true", help="replace an existing output file")
+    p.add_argument(
+        "--smoothing-sigma-m",
+        type=float,
+        default=20.0,
+        metavar="M",
+        help="Gaussian smoothing of heading/curvature/grade along the track, std dev (default 20)",
+    )
+    p.add_argument(
+        "--profile-step-m", type=float, default=2.0, metavar="M", help="profile grid step (default 2)"
+    )
+    p.add_argument(
+        "--junction-tolerance-m",
+        type=float,
+        default=1.0,
+        metavar="M",
+        help="vertices closer than this are one network node (default 1)",
+    )
+    p.add_argument(
+        "--default-line", type=int, default=1, metavar="N", help="1-based default line (default 1)"
+    )
+    p.set_defaults(_track=_run_import)
+
+    p = sub.add_parser(
+        "info",
+        help="lines, lengths, vertices, tightest curve, junctions",
+        description="Summary of a track database.",
+    )
+    p.add_argument(
+        "track", nargs="?", metavar="TRACK.db", help="track database (default: the bundled Jena network)"
+    )
+    p.add_argument("--json", action="store_true", help="machine-readable output")
+    p.set_defaults(_track=_run_info)
+
+    p = sub.add_parser(
+        "export", help="export the lines, junctions and stops as GeoJSON", description="Export for QGIS."
+    )
+    p.add_argument("track", nargs="?", metavar="TRACK.db", help="track database (default: the bundled one)")
+    p.add_argument(
+        "--geojson", required=True, metavar="OUT", help="GeoJSON file to write ('-': standard output)"
+    )
+    p.set_defaults(_track=_run_export)
+
+    p = sub.add_parser(
+        "locate",
+        help="project a position onto the network (or one line)",
+        description="Nearest line, arc length and signed lateral offset (> 0 right of the direction of travel).",
+    )
+    p.add_argument("lat", type=float, metavar="LAT", help="latitude [deg]")
+    p.add_argument("lon", type=float, metavar="LON", help="longitude [deg]")
+    p.add_argument("--track", metavar="TRACK.db", help="track database (default: the bundled one)")
+    p.add_argument("--line", type=int, metavar="ID", help="project onto this line only")
+    p.add_argument("--json", action="store_true", help="machine-readable output")
+    p.set_defaults(_track=_run_locate)
+
+
+def run(args: argparse.Namespace) -> int:
+    return int(args._track(args) or 0)
+
+
+def _open(path: str | None):
+    from . import TrackDatabase, default_database_path
+
+    return TrackDatabase.open(path if path else default_database_path())
+
+
+def _run_import(args: argparse.Namespace) -> int:
+    from pathlib import Path
+
+    from .build import BuildConfig, append_lines, create_database
+    from .errors import ImportFailed
+    from .importers import ImportOptions, load_source
+
+    out = Path(args.output)
+    options = ImportOptions(
+        route=args.route,
+        shape=args.shape,
+        name=args.name,
+        max_gap_m=args.max_gap_m,
+        attribution=args.attribution,
+    )
+    batch = load_source(args.src, args.format, options)
+    if args.append:
+        if not out.exists():
+            raise ImportFailed(f"{out}: --append needs an existing track database")
+        ids = append_lines(out, batch.lines, stops=batch.stops, max_gap_m=args.max_gap_m)
+    else:
+        if out.exists() and not args.force:
+            raise ImportFailed(f"{out} already exists (use --append to add lines, or --force to replace it)")
+        config = BuildConfig(
+            smoothing_sigma_m=args.smoothing_sigma_m,
+            profile_step_m=args.profile_step_m,
+            junction_tolerance_m=args.junction_tolerance_m,
+            max_gap_m=args.max_gap_m,
+        )
+        create_database(
+            out,
+            batch.lines,
+            config=config,
+            stops=batch.stops,
+            default_line=args.default_line - 1,
+            overwrite=args.force,
+        )
+        ids = list(range(1, len(batch.lines) + 1))
+    for note in batch.notes:
+        print(f"note: {note}", file=sys.stderr)
+    print(f"{out}: imported {len(ids)} line(s), ids {ids[0]}..{ids[-1]}")
+    return 0
+
+
+def _summary(db) -> dict:
+    lines = db.lines()
+    junctions = db.junctions()
+    kinds: dict[str, int] = {}
+    for j in junctions:
+        kinds[j.kind] = kinds.get(j.kind, 0) + 1
+    return {
+        "path": str(db.path),
+        "projection": db.projection,
+        "default_line_id": db.default_line_id,
+        "smoothing_sigma_m": float(db.meta["smoothing_sigma_m"]),
+        "lines": [
+            {
+                "line_id": i.line_id,
+                "name": i.name,
+                "length_m": i.length_m,
+                "n_vertices": i.n_vertices,
+                "min_radius_m": i.min_radius_m,
+                "has_altitude": i.has_altitude,
+            }
+            for i in lines
+        ],
+        "total_length_m": sum(i.length_m for i in lines),
+        "junction_nodes": len({j.node_id for j in junctions}),
+        "junction_pairs": len(junctions),
+        "junction_kinds": kinds,
+        "tightest_radius_m": min((i.min_radius_m for i in lines if i.min_radius_m), default=None),
+    }
+
+
+def _run_info(args: argparse.Namespace) -> int:
+    with _open(args.track) as db:
+        info = _summary(db)
+        if args.json:
+            print(json.dumps(info, indent=2, ensure_ascii=False))
+            return 0
+        print(f"{info['path']}")
+        print(f"projection: {info['projection']}")
+        print(
+            f"{len(info['lines'])} lines, {info['total_length_m'] / 1000:.3f} km in total; default line {info['default_line_id']}"
+        )
+        print(f"{'id':>4}  {'length_m':>10}  {'vertices':>8}  {'min_radius_m':>12}  name")
+        for ln in info["lines"]:
+            r = ln["min_radius_m"]
+            radius = f"{r:12.1f}" if r else f"{'straight':>12}"
+            mark = "*" if ln["line_id"] == info["default_line_id"] else " "
+            print(
+                f"{ln['line_id']:>4}{mark} {ln['length_m']:10.1f}  {ln['n_vertices']:8d}  {radius}  {ln['name']}"
+            )
+        kinds = ", ".join(f"{v} {k}" for k, v in sorted(info["junction_kinds"].items())) or "none"
+        tight = info["tightest_radius_m"]
+        print(f"tightest radius: {tight:.1f} m" if tight else "tightest radius: none (all straight)")
+        print(
+            f"junctions: {info['junction_nodes']} branch points, {info['junction_pairs']} line pairs ({kinds})"
+        )
+    return 0
+
+
+def _run_export(args: argparse.Namespace) -> int:
+    from .errors import TrackDbError
+    from .export import to_geojson
+
+    with _open(args.track) as db:
+        doc = to_geojson(db)
+    text = json.dumps(doc, ensure_ascii=False)
+    if args.geojson == "-":
+        print(text)
+    else:
+        try:
+            with open(args.geojson, "w", encoding="utf-8") as fh:
+                fh.write(text)
+        except OSError as exc:
+            raise TrackDbError(f"cannot write {args.geojson}: {exc}") from None
+        print(f"{args.geojson}: {len(doc['features'])} features")
+    return 0
+
+
+def _run_locate(args: argparse.Namespace) -> int:
+    with _open(args.track) as db:
+        if args.line is not None:
+            line = db.line(args.line)
+            s, off = line.project_latlon(args.lat, args.lon)
+            line_id, s, off = line.line_id, float(s), float(off)
+        else:
+            p = db.locate(args.lat, args.lon)
+            line_id, s, off = p.line_id, p.s_m, p.offset_m
+        line = db.line(line_id)
+        lat, lon = line.latlon_at(s)
+        result = {
+            "line_id": line_id,
+            "line_name": line.name,
+            "s_m": s,
+            "offset_m": off,
+            "on_track_lat_deg": float(lat),
+            "on_track_lon_deg": float(lon),
+            "heading_deg": float(line.heading_at(s)) * 57.29577951308232 % 360.0,
+            "curvature_per_m": float(line.curvature_at(s)),
+        }
+    if args.json:
+        print(json.dumps(result, indent=2, ensure_ascii=False))
+    else:
+        side = "right" if off > 0 else "left" if off < 0 else "on the line"
+        print(
+            f"line {line_id} ({result['line_name']}): s = {s:.3f} m, offset {abs(off):.3f} m {side}"
+            f" (on track {result['on_track_lat_deg']:.7f}, {result['on_track_lon_deg']:.7f};"
+            f" heading {result['heading_deg']:.1f} deg, curvature {result['curvature_per_m']:.5f} 1/m)"
+        )
+    return 0

@@ -1,0 +1,76 @@
+"""Importers: read a source file into validated-to-be ``LineGeometry`` objects (no database access).
+
+Each returns an :class:`ImportBatch`; :mod:`track_db.build` then validates, computes and writes it in
+one transaction. Errors are ``ImportFailed`` naming the feature/row and the reason.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from ..build import LineGeometry, StopPoint
+from ..errors import ImportFailed
+
+__all__ = ["FORMATS", "ImportBatch", "ImportOptions", "guess_format", "load_source"]
+
+FORMATS = ("geojson", "gtfs", "csv")
+
+
+@dataclass(frozen=True)
+class ImportOptions:
+    """What to take from a source file."""
+
+    route: str | None = None  #: GTFS route (short name, long name or id); GeoJSON feature ref/name/id
+    shape: str | None = None  #: GTFS shape_id
+    name: str | None = None  #: name of the line (only when the source yields exactly one line)
+    max_gap_m: float = 1000.0  #: longest accepted distance between consecutive vertices [m]
+    attribution: str | None = None  #: attribution statement; default: what the source says
+    snap_m: float = 0.5  #: MultiLineString parts whose ends are this close are joined [m]
+
+
+@dataclass(frozen=True)
+class ImportBatch:
+    lines: list[LineGeometry]
+    stops: list[StopPoint] = field(default_factory=list)
+    notes: list[str] = field(default_factory=list)  #: what was dropped, bridged or ignored
+
+
+def guess_format(src: Path) -> str:
+    if src.is_dir() or src.suffix.lower() == ".zip":
+        return "gtfs"
+    suffix = src.suffix.lower()
+    if suffix in (".geojson", ".json"):
+        return "geojson"
+    if suffix in (".csv", ".txt"):
+        return "csv"
+    raise ImportFailed(f"{src}: cannot tell the format from the name; give --format {'|'.join(FORMATS)}")
+
+
+def load_source(src: str | Path, fmt: str | None, options: ImportOptions) -> ImportBatch:
+    """Read ``src`` in format ``fmt`` (None: guessed from the name)."""
+    src = Path(src)
+    if not src.exists():
+        raise ImportFailed(f"{src}: no such file or directory")
+    fmt = fmt or guess_format(src)
+    if fmt == "geojson":
+        from .geojson import load_geojson
+
+        batch = load_geojson(src, options)
+    elif fmt == "gtfs":
+        from .gtfs import load_gtfs
+
+        batch = load_gtfs(src, options)
+    elif fmt == "csv":
+        from .csvfile import load_csv
+
+        batch = load_csv(src, options)
+    else:
+        raise ImportFailed(f"unknown format {fmt!r} (known: {', '.join(FORMATS)})")
+    if options.name is not None:
+        if len(batch.lines) != 1:
+            raise ImportFailed(f"--name needs exactly one line, but {src} gives {len(batch.lines)}")
+        from dataclasses import replace
+
+        batch = ImportBatch([replace(batch.lines[0], name=options.name)], batch.stops, batch.notes)
+    return batch
