@@ -45,4 +45,11 @@ class EncodeError(CodecError):
     (h11's LocalProtocolError). Never caused by network input."""
 
 
+class SequenceError(ListenerError):
+    """A sequence buffer was called with an impossible argument (a seq outside 0..65535, a bad time).
+
+    Never caused by network input: sequence numbers come from a decoded 16-bit header field.
+    """
+
+
 BASE_ERROR = ListenerError
