@@ -30,7 +30,7 @@ from dataclasses import dataclass, fields
 from typing import Generic, TypeVar
 
 from listener.errors import ConfigError, SequenceError
-from listener.serial import SERIAL_HALF, SERIAL_MASK, SERIAL_MOD, serial_diff
+from listener.serial import SERIAL_HALF, SERIAL_MASK, SERIAL_MOD
 
 __all__ = ["SeqBufferConfig", "SeqStats", "SequenceBuffer", "StreamTable", "StreamTableStats", "stream_key"]
 
@@ -165,47 +165,61 @@ class SequenceBuffer(Generic[T]):
         """Accept one item; return the items released by it (and by the passage of time), in order."""
         if type(seq) is not int or not 0 <= seq <= SERIAL_MASK:
             raise SequenceError(f"seq must be an int in 0..65535, got {seq!r}")
-        now = self._advance(now)
+        if now > self._now:
+            self._now = now
+        elif now != now:
+            raise SequenceError("now must be a number of seconds, got NaN")
+        else:
+            now = self._now
         out: list[T] = []
-        self._expire(now, out)
+        if self._arrivals or self._prob:
+            self._expire(now, out)
         self._received += 1
         ref = self._ref
         if ref is None:
             self._first(seq, item, now, out)
-        else:
-            d = serial_diff(seq, ref & SERIAL_MASK)
-            ext = ref + d
-            expected = self._expected
-            if expected is None:  # startup hold: the start of the stream is not known yet
-                if -self._cfg.max_backward <= d <= self._cfg.max_forward:
-                    if ext in self._pending:
-                        self._duplicates += 1
-                    else:
-                        self._hold_item(ext, item, now, out)
-                else:
-                    self._probation(seq, item, now, out)
-            elif d == 0:  # the next expected number
-                self._accept_count(ext)
-                out.append(item)
-                self._released += 1
-                self._expected = ext + 1
-                self._ref = ext + 1
-                if self._pending:
-                    self._release_run(out)
-            elif 0 < d <= self._cfg.max_forward:
+            if self._arrivals:
+                self._expire(now, out)  # hold_time_s == 0 releases at once
+            return out
+        d = ((seq - ref + SERIAL_HALF) & SERIAL_MASK) - SERIAL_HALF  # serial_diff(seq, ref), inlined
+        ext = ref + d
+        expected = self._expected
+        if d == 0 and expected is not None:  # the next expected number: the common case
+            if ext > self._max_ext:
+                self._max_ext = ext
+                self._in_order += 1
+            else:
+                self._reordered += 1
+            out.append(item)
+            self._released += 1
+            self._expected = self._ref = ext + 1
+            if self._pending:
+                self._release_run(out)
+            return out
+        cfg = self._cfg
+        if expected is None:  # startup hold: the start of the stream is not known yet
+            if -cfg.max_backward <= d <= cfg.max_forward:
                 if ext in self._pending:
                     self._duplicates += 1
                 else:
                     self._hold_item(ext, item, now, out)
-            elif -self._cfg.max_backward <= d < 0:
-                if ext < self._start or ext in self._lost_set:
-                    self._lost_set.discard(ext)  # a second copy of a late item is a duplicate
-                    self._late += 1
-                else:
-                    self._duplicates += 1
             else:
                 self._probation(seq, item, now, out)
-        self._expire(now, out)  # hold_time_s == 0 releases at once
+        elif 0 < d <= cfg.max_forward:
+            if ext in self._pending:
+                self._duplicates += 1
+            else:
+                self._hold_item(ext, item, now, out)
+        elif -cfg.max_backward <= d < 0:
+            if ext < self._start or ext in self._lost_set:
+                self._lost_set.discard(ext)  # a second copy of a late item is a duplicate
+                self._late += 1
+            else:
+                self._duplicates += 1
+        else:
+            self._probation(seq, item, now, out)
+        if self._arrivals:
+            self._expire(now, out)  # hold_time_s == 0 releases at once
         return out
 
     def poll(self, now: float) -> list[T]:

@@ -238,6 +238,10 @@ def test_nan_time_is_a_sequence_error():
     buf: SequenceBuffer = SequenceBuffer(CFG)
     with pytest.raises(SequenceError, match="NaN"):
         buf.poll(math.nan)
+    buf.push(0, 0, 1.0)
+    with pytest.raises(SequenceError, match="NaN"):
+        buf.push(1, 1, math.nan)
+    assert buf.stats.received == 1
 
 
 @pytest.mark.parametrize(
