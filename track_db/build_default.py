@@ -19,8 +19,9 @@ import numpy as np
 
 from .build import BuildConfig, create_database
 from .importers import ImportOptions, load_source
+from .validate import CUSP_DEG, max_turn_deg
 
-__all__ = ["DATA_DIR", "SOURCE", "OUTPUT", "CONFIG", "build", "max_turn_deg", "main"]
+__all__ = ["DATA_DIR", "SOURCE", "OUTPUT", "CONFIG", "build", "main"]
 
 DATA_DIR = Path(__file__).resolve().parent / "data"
 SOURCE = DATA_DIR / "sources" / "jena-trams-2014.geojson"
@@ -37,18 +38,6 @@ CONFIG = BuildConfig(
     max_gap_m=1000.0,
     stop_tolerance_m=30.0,
 )
-#: a vertex turning more than this is a reversal cusp (the route doubles back on a stub) [deg]
-CUSP_DEG = 150.0
-
-
-def max_turn_deg(lat_deg: np.ndarray, lon_deg: np.ndarray) -> float:
-    """Largest change of direction at a vertex of the polyline [deg] (equirectangular, for screening)."""
-    x = np.radians(lon_deg) * np.cos(np.radians(np.mean(lat_deg)))
-    y = np.radians(lat_deg)
-    h = np.arctan2(np.diff(x), np.diff(y))
-    if h.size < 2:
-        return 0.0
-    return float(np.degrees(np.max(np.abs(np.angle(np.exp(1j * np.diff(h)))))))
 
 
 def build(output: Path = OUTPUT, source: Path = SOURCE) -> Path:

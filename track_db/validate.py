@@ -9,10 +9,25 @@ import numpy as np
 from .errors import ImportFailed
 from .geodesy import segment_lengths_m
 
-__all__ = ["validate_vertices", "DUPLICATE_TOLERANCE_M"]
+__all__ = ["CUSP_DEG", "DUPLICATE_TOLERANCE_M", "max_turn_deg", "validate_vertices"]
 
 #: consecutive vertices closer than this are "duplicated points" [m]
 DUPLICATE_TOLERANCE_M = 1e-3
+
+#: a vertex where the polyline turns by more than this is a reversal cusp (the route doubles back) [deg]
+CUSP_DEG = 150.0
+
+
+def max_turn_deg(lat_deg: np.ndarray, lon_deg: np.ndarray) -> float:
+    """Largest change of direction at a vertex of the polyline [deg] (equirectangular, for screening)."""
+    lat = np.asarray(lat_deg, dtype=np.float64)
+    if lat.size < 3:
+        return 0.0
+    x = np.radians(np.asarray(lon_deg, dtype=np.float64)) * np.cos(np.radians(np.mean(lat)))
+    h = np.arctan2(np.diff(x), np.diff(np.radians(lat)))
+    if h.size < 2:
+        return 0.0
+    return float(np.degrees(np.max(np.abs(np.angle(np.exp(1j * np.diff(h)))))))
 
 
 def _where(label: str, refs: Sequence[str] | None, k: int) -> str:

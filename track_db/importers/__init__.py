@@ -11,6 +11,7 @@ from pathlib import Path
 
 from ..build import LineGeometry, StopPoint
 from ..errors import ImportFailed
+from ..validate import CUSP_DEG, max_turn_deg
 
 __all__ = ["FORMATS", "ImportBatch", "ImportOptions", "guess_format", "load_source"]
 
@@ -67,6 +68,18 @@ def load_source(src: str | Path, fmt: str | None, options: ImportOptions) -> Imp
         batch = load_csv(src, options)
     else:
         raise ImportFailed(f"unknown format {fmt!r} (known: {', '.join(FORMATS)})")
+    notes = list(batch.notes)
+    for line in batch.lines:
+        try:
+            turn = max_turn_deg(line.lat_deg, line.lon_deg)
+        except (TypeError, ValueError):
+            continue  # not numeric: validation reports it with its row
+        if turn > CUSP_DEG:
+            notes.append(
+                f"{line.label or line.name}: the polyline turns by {turn:.0f} deg at one vertex (a reversal cusp: "
+                "the route doubles back); its curvature there is not drivable"
+            )
+    batch = ImportBatch(batch.lines, batch.stops, notes)
     if options.name is not None:
         if len(batch.lines) != 1:
             raise ImportFailed(f"--name needs exactly one line, but {src} gives {len(batch.lines)}")
