@@ -291,6 +291,13 @@ def sensor_type_of(msg: InputMessage) -> SensorType:
 # Diagnosis (slow path, shared by decode and encode).
 
 
+def _integer(x: object, invalid: int) -> int:
+    """``x`` as a plain int if it is an integer (int, IntEnum, numpy integer; not bool), else ``invalid``."""
+    if isinstance(x, bool) or not isinstance(x, numbers.Integral):
+        return invalid
+    return int(x)
+
+
 def _diagnose(names: tuple[str, ...], values: tuple, error: type, where: str) -> None:
     """Raise ``error`` naming the first field (wire order) that is non-finite or out of range."""
     for name, x in zip(names, values, strict=True):
@@ -374,8 +381,10 @@ def pack(m, validate):
     if not ({shape}):
         raise EncodeError(RejectReason.FORM, WHERE + ": optional fields do not match this form")
     seq = m.seq
-    if type(seq) is not int or not (0 <= seq <= 0xFFFF):
-        raise EncodeError(RejectReason.RANGE, f"{{WHERE}}: seq={{seq!r}} outside [0, 65535]")
+    if type(seq) is not int:
+        seq = _integer(seq, -1)  # an IntEnum or numpy integer is fine; a float, bool or None is not
+    if not (0 <= seq <= 0xFFFF):
+        raise EncodeError(RejectReason.RANGE, f"{{WHERE}}: seq={{m.seq!r}} outside [0, 65535]")
     if not ({int_types}):
         _diagnose(NAMES, ({pack_args}{"," if names else ""}), EncodeError, WHERE)
     if validate:
@@ -403,6 +412,7 @@ def pack(m, validate):
         "EncodeError": EncodeError,
         "RejectReason": RejectReason,
         "struct": struct,
+        "_integer": _integer,
         "NEW": object.__new__,
         "UNPACK": st.unpack,
         **{f"SET_{fname}": getattr(layout.cls, fname).__set__ for fname in cls_fields},
@@ -559,9 +569,11 @@ def _struct_for(table: dict[str, struct.Struct], byteorder: str) -> struct.Struc
     return st
 
 
-def _check_seq_out(seq: object, where: str) -> None:
-    if type(seq) is not int or not 0 <= seq <= 0xFFFF:
+def _check_seq_out(seq: object, where: str) -> int:
+    value = seq if type(seq) is int else _integer(seq, -1)
+    if not 0 <= value <= 0xFFFF:
         raise EncodeError(RejectReason.RANGE, f"{where}: seq={seq!r} outside [0, 65535]")
+    return value
 
 
 def _check_finite(where: str, error: type, **values: object) -> None:
@@ -583,9 +595,9 @@ def _check_length(data: object, size: int, where: str) -> bytes:
 def encode_output(msg: OutputMessage, byteorder: str = "<") -> bytes:
     """Encode OUTPUT_PROTOCOL (18 bytes ``<Hdd``). EncodeError: seq outside 0..65535, non-finite values."""
     st = _struct_for(_OUT, byteorder)
-    _check_seq_out(msg.seq, "OUTPUT")
+    seq = _check_seq_out(msg.seq, "OUTPUT")
     _check_finite("OUTPUT", EncodeError, epoch=msg.epoch, arc_length=msg.arc_length)
-    return st.pack(msg.seq, msg.epoch, msg.arc_length)
+    return st.pack(seq, msg.epoch, msg.arc_length)
 
 
 def decode_output(data: bytes, byteorder: str = "<") -> OutputMessage:
@@ -608,21 +620,21 @@ def _check_extended(m: OutputExtended, error: type) -> None:
             f"{where}: interval [{m.interval_low!r}, {m.interval_high!r}]"
             f" does not contain arc_length={m.arc_length!r}",
         )
-    if type(m.status) is not int or not 0 <= m.status <= 255:
+    if not 0 <= _integer(m.status, -1) <= 255:
         raise error(RejectReason.RANGE, f"{where}: status={m.status!r} outside [0, 255]")
     line = m.line_id
-    if line is not None and (type(line) is not int or not L.LINE_ID_MIN <= line <= L.LINE_ID_MAX):
+    if line is not None and not L.LINE_ID_MIN <= _integer(line, -1) <= L.LINE_ID_MAX:
         raise error(RejectReason.RANGE, f"{where}: line_id={line!r} outside [0, {L.LINE_ID_MAX}] or None")
 
 
 def encode_output_extended(msg: OutputExtended, byteorder: str = "<") -> bytes:
     """Encode the extended OUTPUT (47 bytes ``<HdddddBi``; line_id None is sent as -1); EncodeError if bad."""
     st = _struct_for(_OUT_EXT, byteorder)
-    _check_seq_out(msg.seq, "OUTPUT_EXTENDED")
+    seq = _check_seq_out(msg.seq, "OUTPUT_EXTENDED")
     _check_extended(msg, EncodeError)
-    line = -1 if msg.line_id is None else msg.line_id
+    line = -1 if msg.line_id is None else int(msg.line_id)
     return st.pack(
-        msg.seq, msg.epoch, msg.arc_length, msg.speed, msg.interval_low, msg.interval_high, msg.status, line
+        seq, msg.epoch, msg.arc_length, msg.speed, msg.interval_low, msg.interval_high, int(msg.status), line
     )
 
 
@@ -651,8 +663,7 @@ def decode_output_any(data: bytes, byteorder: str = "<") -> OutputMessage | Outp
 def encode_ack(seq: int, byteorder: str = "<") -> bytes:
     """Encode an ACK (2 bytes ``<H``). EncodeError(RANGE) if seq is not an int in 0..65535."""
     st = _struct_for(_ACK, byteorder)
-    _check_seq_out(seq, "ACK")
-    return st.pack(seq)
+    return st.pack(_check_seq_out(seq, "ACK"))
 
 
 def decode_ack(data: bytes, byteorder: str = "<") -> int:

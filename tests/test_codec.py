@@ -480,3 +480,46 @@ def test_protocol_doc_range_table_matches_the_constants():
     for name, rng in FIELD_RANGES.items():
         row = f"| `{name}` | {rng.describe()} |"
         assert row in text, row
+
+
+def test_integer_like_and_numpy_values_encode_like_plain_ones():
+    import enum
+
+    import numpy as np
+
+    class Status(enum.IntEnum):
+        NOMINAL = 1
+
+    ext = OutputExtended(np.uint16(42), 1.0, 5.0, np.float64(1.0), 4.0, 7.0, Status.NOMINAL, np.int64(3))
+    plain = OutputExtended(42, 1.0, 5.0, 1.0, 4.0, 7.0, 1, 3)
+    assert encode_output_extended(ext) == encode_output_extended(plain)
+    assert encode_ack(np.int32(7)) == encode_ack(7)
+    out = OutputMessage(np.int64(9), np.float32(1.5), 2.0)
+    assert encode_output(out) == encode_output(OutputMessage(9, 1.5, 2.0))
+    gps = GpsFix(np.int64(5), np.float64(45.0), 9.0, 100.0, np.int32(4), np.int64(12))
+    assert encode_input(gps) == encode_input(GpsFix(5, 45.0, 9.0, 100.0, 4, 12))
+    for bad in (OutputMessage(True, 1.0, 2.0), OutputMessage(1.0, 1.0, 2.0)):
+        with pytest.raises(EncodeError):
+            encode_output(bad)
+    with pytest.raises(EncodeError):
+        encode_input(GpsFix(5, 45.0, 9.0, 100.0, True, 12))
+
+
+def test_every_header_with_a_consistent_length_is_classified():
+    """All 256 types x N_INT 0..3 x N_DOUBLE 0..8 with zero payload: the exact reason for each."""
+    allowed = set(INPUT_FORMS)
+    for t in range(256):
+        for n_int in range(4):
+            for n_double in range(9):
+                data = bytes([t, 1, 0, n_int, n_double]) + b"\x00" * (4 * n_int + 8 * n_double)
+                try:
+                    msg = decode_input(data)
+                except DecodeError as exc:
+                    if t not in {int(x) for x in SensorType}:
+                        assert exc.reason is RejectReason.TYPE
+                    elif (SensorType(t), n_int, n_double) not in allowed:
+                        assert exc.reason is RejectReason.FORM
+                    else:  # zeros are out of range for sigma (> 0) only
+                        assert exc.reason is RejectReason.RANGE and "sigma" in exc.detail
+                else:
+                    assert (sensor_type_of(msg), n_int, n_double) in allowed
