@@ -298,6 +298,13 @@ def _integer(x: object, invalid: int) -> int:
     return int(x)
 
 
+def _check_int_types(names: tuple[str, ...], values: tuple, where: str) -> None:
+    """Raise EncodeError(RANGE) for an int field holding a non-integer (float, bool, None, str)."""
+    for name, x in zip(names, values, strict=True):
+        if isinstance(x, bool) or not isinstance(x, numbers.Integral):
+            raise EncodeError(RejectReason.RANGE, f"{where}: {name} must be an int, got {type(x).__name__}")
+
+
 def _diagnose(names: tuple[str, ...], values: tuple, error: type, where: str) -> None:
     """Raise ``error`` naming the first field (wire order) that is non-finite or out of range."""
     for name, x in zip(names, values, strict=True):
@@ -368,6 +375,7 @@ def _compile_form(t: SensorType, ints: tuple[str, ...], dbls: tuple[str, ...], b
     pack_args = ", ".join(f"m.{n}" for n in names)
     enc_check = " and ".join(_range_expr(n, f"m.{n}") for n in names) or "True"
     int_types = " and ".join(f"type(m.{n}) is int" for n in ints) or "True"
+    int_args = ", ".join(f"m.{n}" for n in ints)
     src = f"""
 def build(data):
     {unpacked} = UNPACK(data)
@@ -386,7 +394,7 @@ def pack(m, validate):
     if not (0 <= seq <= 0xFFFF):
         raise EncodeError(RejectReason.RANGE, f"{{WHERE}}: seq={{m.seq!r}} outside [0, 65535]")
     if not ({int_types}):
-        _diagnose(NAMES, ({pack_args}{"," if names else ""}), EncodeError, WHERE)
+        _check_int_types(INT_NAMES, ({int_args}{"," if ints else ""}), WHERE)
     if validate:
         try:
             ok = {enc_check}
@@ -413,6 +421,8 @@ def pack(m, validate):
         "RejectReason": RejectReason,
         "struct": struct,
         "_integer": _integer,
+        "_check_int_types": _check_int_types,
+        "INT_NAMES": ints,
         "NEW": object.__new__,
         "UNPACK": st.unpack,
         **{f"SET_{fname}": getattr(layout.cls, fname).__set__ for fname in cls_fields},
@@ -532,8 +542,9 @@ def encode_input(msg: InputMessage, byteorder: str = "<", *, validate: bool = Tr
     The form (N_INT, N_DOUBLE) follows from which optional fields are set: GPS ``fix_quality`` and
     ``num_sv`` go together; GPS ``epoch`` requires ``sigma_h``. Raises :class:`EncodeError` with FORM
     (optional fields that no form allows), RANGE (seq outside 0..65535, wrong field types, or with
-    ``validate`` a value outside its range) or NON_FINITE. ``validate=False`` skips the physical-range
-    checks only (for fault-injection tools that must send out-of-range values on purpose).
+    ``validate`` a value outside its range) or NON_FINITE. ``validate=False`` skips the value checks
+    (ranges and finiteness; not the form, the seq or the field types), for fault-injection tools that
+    must send out-of-range values on purpose.
     """
     tables = _tables(byteorder)
     t = sensor_type_of(msg)
