@@ -286,6 +286,24 @@ def test_any_permutation_within_the_hold_window_comes_out_complete_and_in_order(
     check_identities(s)
 
 
+COPIES = st.lists(st.integers(1, 4), min_size=1, max_size=80)
+
+
+@given(st.integers(0, 0xFFFF), COPIES, st.randoms(use_true_random=False))
+def test_duplicates_never_come_out_twice(seq0, copies, rnd):
+    """Every item sent 1..4 times, all copies shuffled within one hold time: each comes out once."""
+    arrivals = [i for i, c in enumerate(copies) for _ in range(c)]
+    rnd.shuffle(arrivals)
+    buf: SequenceBuffer = SequenceBuffer(CFG)
+    out: list[int] = []
+    for k, i in enumerate(arrivals):
+        out += buf.push((seq0 + i) & 0xFFFF, i, k * HOLD / (2 * len(arrivals)))
+    out += _drain(buf, 1.0)
+    assert out == list(range(len(copies)))
+    assert buf.stats.duplicates == len(arrivals) - len(copies)
+    check_identities(buf.stats)
+
+
 @given(st.integers(0, 2**32 - 1), st.integers(0, 0xFFFF), st.integers(20, 400))
 def test_jitter_below_hold_time_never_loses_and_keeps_order(seed, seq0, n):
     """Items sent every 2 ms, each delayed by an independent jitter in [0, hold): the output is the
