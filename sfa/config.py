@@ -61,7 +61,7 @@ class FilterConfig:
     # --- GNSS step / ramp
     step_min_m: float = 5.0  #: smallest gated GNSS innovation classified as a step [m]
     cusum_k_sigma: float = 0.5  #: CUSUM drift allowance [sigma of the along-track innovation]
-    cusum_h_sigma: float = 10.0  #: CUSUM decision threshold [sigma]
+    cusum_h_sigma: float = 8.0  #: CUSUM decision threshold [sigma]
     gps_holdoff_s: float = 20.0  #: GNSS fixes ignored after a ramp detection [s]
     reacquire_s: float = 30.0  #: duration of self-consistent GNSS rejections that re-anchor the position [s]
     reacquire_consistency_m: float = 3.0  #: largest drift of the rejected along-track residual [m]

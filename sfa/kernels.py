@@ -331,8 +331,9 @@ def predict_to(x, P, aux, cnt, cfg, ts, tg, t):
 @njit(cache=True)
 def innovation(P, H, R, y, m):
     """Innovation covariance S = H P H' + R, its inverse, the NIS y' S^-1 y and log det S."""
-    PHt = P @ H[:m, :].T
-    Sm = H[:m, :] @ PHt
+    Hm = np.ascontiguousarray(H[:m, :])
+    PHt = P @ Hm.T
+    Sm = Hm @ PHt
     for i in range(m):
         for j in range(m):
             Sm[i, j] += R[i, j]
@@ -359,10 +360,12 @@ def apply_update(x, P, H, R, y, m, PHt, Si, cfg, cnt):
     """K = P H' S^-1 ; x = x + K y ; Joseph form P = (I - K H) P (I - K H)' + K R K'.
 
     The update is abandoned (state unchanged) if it would produce a non-finite value."""
+    Hm = np.ascontiguousarray(H[:m, :])
+    Rm = np.ascontiguousarray(R[:m, :m])
     K = PHt @ Si
-    xn = x + K @ y[:m]
-    IKH = np.eye(NX) - K @ H[:m, :]
-    Pn = IKH @ P @ IKH.T + K @ R[:m, :m] @ K.T
+    xn = x + K @ np.ascontiguousarray(y[:m])
+    IKH = np.eye(NX) - K @ Hm
+    Pn = IKH @ P @ IKH.T + K @ Rm @ K.T
     for i in range(NX):
         if not math.isfinite(xn[i]):
             return False
@@ -661,6 +664,19 @@ def step_gps(x, P, aux, cnt, cfg, ts, te, tn, tg, t, east, north, sigma_h, fix_q
     if dl <= 0.0:
         predict_to(x, P, aux, cnt, cfg, ts, tg, t)
         dl = 0.0
+    if t - aux[A_T_GPS] > cfg[K_GPS_TIMEOUT] and aux[A_GPS_REJ] == 0.0:
+        # after an outage the receiver computes a new solution: its correlated error restarts from the
+        # stationary distribution, uncorrelated with the rest of the state
+        gm = cfg[K_GM_SIGMA]
+        for i in range(NX):
+            P[GE, i] = 0.0
+            P[i, GE] = 0.0
+            P[GN, i] = 0.0
+            P[i, GN] = 0.0
+        x[GE] = 0.0
+        x[GN] = 0.0
+        P[GE, GE] = gm * gm
+        P[GN, GN] = gm * gm
     check_timeouts(aux, cnt, cfg, max(t, aux[A_T_STATE]))
     he, hn, H, de, dn = gps_model(x, ts, te, tn, dl)
     y = np.zeros(2)

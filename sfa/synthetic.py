@@ -152,3 +152,65 @@ def generate(
                                       gps.fix_quality, gps.num_sv_mean)))
     meas.sort(key=lambda m: (m[0], m[1]))
     return SyntheticRun(t, s, v, [m for _, _, m in meas], bias, scale)
+
+
+def _arc(x0: float, y0: float, heading: float, radius: float, angle: float, step: float):
+    """Points (east, north) of a circular arc from (x0, y0) at ``heading`` (rad, clockwise from north);
+    angle > 0 turns right. Returns the points (without the start) and the final heading."""
+    n = max(2, int(math.ceil(abs(angle) * radius / step)))
+    sign = 1.0 if angle > 0 else -1.0
+
+    def right(h: float) -> tuple[float, float]:
+        return math.cos(h), -math.sin(h)  # unit vector to the right of heading h
+
+    rx, ry = right(heading)
+    cx, cy = x0 + sign * radius * rx, y0 + sign * radius * ry  # centre on the inside of the turn
+    pts = []
+    for k in range(1, n + 1):
+        qx, qy = right(heading + angle * k / n)
+        pts.append((cx - sign * radius * qx, cy - sign * radius * qy))
+    return pts, heading + angle
+
+
+def _straight(x0: float, y0: float, heading: float, length: float, step: float):
+    n = max(1, int(math.ceil(length / step)))
+    dx, dy = math.sin(heading), math.cos(heading)
+    return [(x0 + length * k / n * dx, y0 + length * k / n * dy) for k in range(1, n + 1)]
+
+
+def build_track_db(path, lat0_deg: float = 50.93, lon0_deg: float = 11.58, step_m: float = 10.0):
+    """Write a small two-line test network with ``track_db.build.create_database`` and return its path.
+
+    Line 1 (default): 2 km north, a 90 deg right curve of radius 300 m, 10 km east, with a gentle
+    +-1 % grade. Line 2 shares line 1's first 1 km and branches left (radius 200 m, 45 deg) for 2 km.
+    """
+    from track_db.build import LineGeometry, create_database
+
+    r_earth = 6378137.0
+
+    def to_latlon(pts):
+        p = np.asarray(pts)
+        lat = lat0_deg + np.degrees(p[:, 1] / r_earth)
+        lon = lon0_deg + np.degrees(p[:, 0] / (r_earth * math.cos(math.radians(lat0_deg))))
+        return lat, lon
+
+    def alt_of(pts):
+        p = np.asarray(pts)
+        s = np.concatenate(([0.0], np.cumsum(np.hypot(np.diff(p[:, 0]), np.diff(p[:, 1])))))
+        return 150.0 + 5.0 * np.sin(s / 500.0)
+
+    p1 = [(0.0, 0.0)] + _straight(0.0, 0.0, 0.0, 2000.0, step_m)
+    arc, hd = _arc(*p1[-1], 0.0, 300.0, math.pi / 2, step_m)
+    p1 += arc
+    p1 += _straight(*p1[-1], hd, 10000.0, step_m)
+    n_shared = int(round(1000.0 / step_m)) + 1
+    p2 = p1[:n_shared]
+    arc2, hd2 = _arc(*p2[-1], 0.0, 200.0, -math.pi / 4, step_m)
+    p2 = p2 + arc2
+    p2 += _straight(*p2[-1], hd2, 2000.0, step_m)
+    lines = []
+    for name, pts in (("synthetic main", p1), ("synthetic branch", p2)):
+        lat, lon = to_latlon(pts)
+        lines.append(LineGeometry(name=name, lat_deg=lat, lon_deg=lon, alt_m=alt_of(pts),
+                                  source="sfa.synthetic", attribution="synthetic test geometry"))
+    return create_database(path, lines, overwrite=True)

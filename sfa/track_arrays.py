@@ -1,8 +1,8 @@
 """A line's geometry as contiguous float64 arrays for the compiled kernels.
 
-Positions are the database's own vertices (so ``h(s)`` is exactly the database's ``point_at``: linear
-within a segment); grade and curvature are the database's smoothed values sampled at the vertices and
-interpolated linearly in between.
+Positions are the database's own vertices plus points inserted on the segments every ``PROFILE_STEP_M``
+(so ``h(s)`` is exactly the database's ``point_at``: linear within a segment); grade and curvature are
+the database's smoothed values sampled at those points and interpolated linearly in between.
 """
 
 from __future__ import annotations
@@ -12,6 +12,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from sfa.errors import FilterStateError
+
+PROFILE_STEP_M = 4.0  #: spacing of the grade/curvature samples on long segments [m]
 
 
 def _finite(values) -> np.ndarray:
@@ -43,6 +45,13 @@ class TrackArrays:
         finite = bool(np.all(np.isfinite(s)) and np.all(np.isfinite(e)) and np.all(np.isfinite(n)))
         if s.shape[0] < 2 or not finite:
             raise FilterStateError(f"line {getattr(line, 'line_id', '?')}: degenerate or non-finite geometry")
+        grid = np.arange(s[0], s[-1], PROFILE_STEP_M)
+        s_all = np.union1d(s, grid)
+        s_all = s_all[np.concatenate(([True], np.diff(s_all) > 1e-6))]
+        if s_all[-1] != s[-1]:
+            s_all[-1] = s[-1]
+        e, n = np.interp(s_all, s, e), np.interp(s_all, s, n)
+        s = s_all
         grade = _finite(line.grade_at(s))
         curv = _finite(line.curvature_at(s))
         return cls(

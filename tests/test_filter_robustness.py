@@ -1,0 +1,224 @@
+"""Robustness of the SFA filter on seeded synthetic data: GNSS jump and ramp, odometer slip, a
+10-minute GNSS outage, invalid values, late data, time-outs, determinism."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from interface_modules.presets import GPS_PRESETS, IMU_PRESETS, ODOMETER_PRESETS
+from sfa import batch
+from sfa.filter import TrackFilter
+from sfa.layout import FilterStatus, Outcome
+from sfa.measurements import GpsMeas, ImuMeas, InitMeas, OdoMeas
+from sfa.presets import filter_config_for
+from sfa.synthetic import Faults, build_track_db, generate
+from track_db import TrackDatabase
+
+IMU = IMU_PRESETS["mems-train"]
+ODO = ODOMETER_PRESETS["wheel-odometer"]
+GPS = GPS_PRESETS["standalone"]
+
+
+@pytest.fixture(scope="module")
+def db(tmp_path_factory):
+    path = build_track_db(tmp_path_factory.mktemp("track") / "synthetic.db")
+    with TrackDatabase.open(path) as database:
+        yield database
+
+
+@pytest.fixture(scope="module")
+def cfg():
+    return filter_config_for("mems-train", "wheel-odometer", "standalone")
+
+
+def run_filter(db, cfg, measurements):
+    """Per-message run: (updates, estimates after each measurement, filter)."""
+    f = TrackFilter(db, cfg)
+    updates, estimates = [], []
+    for m in measurements:
+        updates.append(f.process(m))
+        estimates.append(f.estimate())
+    return updates, estimates, f
+
+
+def truth_at(run, t):
+    i = np.clip(np.round((np.asarray(t) - run.t_s[0]) * IMU.rate_hz).astype(int), 0, run.t_s.size - 1)
+    return run.s_m[i]
+
+
+def errors_of(run, estimates):
+    t = np.array([e.epoch_s for e in estimates])
+    s = np.array([e.arc_length_m for e in estimates])
+    return t, s - truth_at(run, t)
+
+
+def test_50m_gnss_jump_rejected_at_first_epoch(db, cfg):
+    jump = (200.0, 230.0, 30.0, 40.0)  # 50 m, mostly along the northbound track
+    run = generate(db, 1, 300.0, IMU, ODO, GPS, seed=11, faults=Faults(gps_jumps=(jump,)))
+    updates, estimates, f = run_filter(db, cfg, run.measurements)
+    t0 = run.t_s[0] + jump[0]
+    gps = [(m, u) for m, u in zip(run.measurements, updates, strict=True) if isinstance(m, GpsMeas)]
+    in_jump = [(m, u) for m, u in gps if t0 <= m.t_s < run.t_s[0] + jump[1]]
+    assert in_jump[0][1].outcome == Outcome.GATED  # first epoch of the jump
+    assert all(u.outcome == Outcome.GATED for _, u in in_jump)
+    before = [u for m, u in gps if m.t_s < t0]
+    assert sum(u.outcome == Outcome.ACCEPTED for u in before) >= len(before) - 1
+    counters = f.counters()
+    assert counters["gnss_step_detections"] >= 1
+    t, err = errors_of(run, estimates)
+    assert np.max(np.abs(err[(t >= t0) & (t < t0 + 30.0)])) < 1.5
+    # during the jump the status says why
+    i = next(k for k, m in enumerate(run.measurements) if m.t_s >= t0 + 5.0)
+    _, est, _ = run_filter(db, cfg, run.measurements[: i + 1])
+    assert "gnss_step" in est[-1].reasons and est[-1].status == FilterStatus.DEGRADED
+
+
+def test_20_percent_slip_for_5s_detected_and_bounded(db, cfg):
+    slip = (130.0, 135.0, 1.2)  # cruising at ~12 m/s
+    clean = generate(db, 1, 200.0, IMU, ODO, GPS, seed=12)
+    slipped = generate(db, 1, 200.0, IMU, ODO, GPS, seed=12, faults=Faults(odo_slips=(slip,)))
+    _, est_clean, _ = run_filter(db, cfg, clean.measurements)
+    upd, est_slip, f = run_filter(db, cfg, slipped.measurements)
+    assert f.counters()["slip_detections"] >= 1
+    t0 = slipped.t_s[0] + slip[0]
+    first_flag = next(e.epoch_s for e in est_slip if "odometer_slip" in e.reasons)
+    assert t0 <= first_flag <= t0 + 0.5
+    s_clean = np.array([e.arc_length_m for e in est_clean])
+    s_slip = np.array([e.arc_length_m for e in est_slip])
+    assert np.max(np.abs(s_slip - s_clean)) <= 1.0
+    _, err = errors_of(slipped, est_slip)
+    assert np.max(np.abs(err)) < 2.0
+    assert f.estimate().status == FilterStatus.NOMINAL or "odometer_slip" not in f.estimate().reasons
+
+
+def test_10_minute_gnss_outage_degrades_honestly_and_recovers(db, cfg):
+    outage = (100.0, 700.0)
+    run = generate(db, 1, 760.0, IMU, ODO, GPS, seed=13, faults=Faults(gps_outages=(outage,)))
+    res = batch.replay(db, cfg, run.measurements)
+    t = res.epoch_s
+    err = res.arc_length_m - truth_at(run, t)
+    t_out0, t_back = run.t_s[0] + outage[0], run.t_s[0] + outage[1]
+    during = (t > t_out0 + cfg.gps_timeout_s + 0.1) & (t < t_back)
+    assert np.all(res.status[during] == FilterStatus.DEGRADED)
+    assert np.all(res.reason_bits[during] & 8)  # R_GPS_TIMEOUT
+    # honest interval: sigma grows and the truth stays inside the 95 % interval (3-sigma at every epoch)
+    sig = res.sigma_s_m
+    assert sig[during][-1] > 3.0 * sig[(t > t_out0 - 10) & (t < t_out0)].max()
+    z = cfg.replace().interval_z()
+    assert np.mean(np.abs(err[during]) <= z * sig[during]) >= 0.95
+    assert np.all(np.abs(err[during]) <= 3.5 * sig[during])
+    # recovery within 10 s of the first fix back
+    after = (t >= t_back + 10.0)
+    assert np.all(res.status[after] == FilterStatus.NOMINAL)
+    assert np.max(np.abs(err[after])) < 1.5
+    assert sig[after].max() < 1.5
+    assert int(res.counters[18]) >= 1  # gps_timeouts
+
+
+def test_gnss_ramp_detected(db, cfg):
+    ramp = (150.0, 250.0, 0.0, 0.3)  # 0.3 m/s along the northbound track
+    run = generate(db, 1, 260.0, IMU, ODO, GPS, seed=14, faults=Faults(gps_ramps=(ramp,)))
+    _, estimates, f = run_filter(db, cfg, run.measurements)
+    assert f.counters()["gnss_ramp_detections"] >= 1
+    first = next(e.epoch_s for e in estimates if "gnss_ramp" in e.reasons or "gnss_rejected" in e.reasons)
+    assert first - (run.t_s[0] + ramp[0]) < 40.0
+    t, err = errors_of(run, estimates)
+    assert np.max(np.abs(err)) < 3.0  # a ramp reaching 30 m moves the estimate by far less
+
+
+def test_invalid_values_rejected_counted_never_nan(db, cfg):
+    run = generate(db, 1, 20.0, IMU, ODO, GPS, seed=15)
+    f = TrackFilter(db, cfg)
+    for m in run.measurements[:500]:
+        f.process(m)
+    t = run.measurements[499].t_s + 0.001
+    bad = [
+        ImuMeas(t, (math.nan, 0.0, -9.8), (0.0, 0.0, 0.0)),
+        ImuMeas(t, (0.0, math.inf, -9.8), (0.0, 0.0, 0.0)),
+        ImuMeas(math.nan, (0.0, 0.0, -9.8), (0.0, 0.0, 0.0)),
+        OdoMeas(t, math.nan, 0.05),
+        OdoMeas(t, 5.0, math.inf),
+        OdoMeas(t, 5.0, -1.0),
+        GpsMeas(t, math.nan, 11.58, 0.0, 1.5, 1, 10),
+        GpsMeas(t, 50.93, math.inf, 0.0, 1.5, 1, 10),
+        GpsMeas(t, 95.0, 11.58, 0.0, 1.5, 1, 10),
+        GpsMeas(t, 50.93, 11.58, 0.0, math.inf, 1, 10),
+        InitMeas(t, math.nan, 1.0, 1),
+        InitMeas(t, 10.0, 1.0, 999),
+    ]
+    before = f.counters()
+    for m in bad:
+        assert f.process(m).outcome == Outcome.INVALID, m
+    after = f.counters()
+    assert after["imu_invalid"] - before["imu_invalid"] == 3
+    assert after["odo_invalid"] - before["odo_invalid"] == 3
+    assert after["gps_invalid"] - before["gps_invalid"] == 4
+    no_fix = f.process(GpsMeas(t, 0.0, 0.0, 0.0, 1e4, 0, 0))
+    assert no_fix.outcome == Outcome.NO_FIX and f.counters()["gps_no_fix"] == 1
+    for m in run.measurements[500:]:
+        f.process(m)
+    e = f.estimate()
+    assert all(math.isfinite(v) for v in (e.arc_length_m, e.speed_mps, e.sigma_s_m, e.lat_deg, e.lon_deg))
+    assert abs(e.arc_length_m - run.s_m[-1]) < 1.0
+    x, P = f.state()
+    np.linalg.cholesky(P)
+    assert np.array_equal(P, P.T)
+
+
+def test_late_data_policy(db, cfg):
+    run = generate(db, 1, 30.0, IMU, ODO, GPS, seed=16)
+    f = TrackFilter(db, cfg)
+    ms = run.measurements
+    for m in ms[:2000]:
+        f.process(m)
+    t_state = f.estimate().epoch_s
+    assert f.process(ImuMeas(t_state - 0.05, (0.0, 0.0, -9.8), (0.0, 0.0, 0.0))).outcome == Outcome.LATE
+    assert f.process(OdoMeas(t_state - 0.05, 5.0, 0.05)).outcome == Outcome.LATE
+    lat, lon = db.line(1).latlon_at(float(truth_at(run, t_state - 0.3)))
+    late_ok = f.process(GpsMeas(t_state - 0.3, float(lat), float(lon), 0.0, 1.5, 1, 12))
+    assert late_ok.outcome == Outcome.ACCEPTED
+    too_late = f.process(GpsMeas(t_state - 2.0, float(lat), float(lon), 0.0, 1.5, 1, 12))
+    assert too_late.outcome == Outcome.LATE
+    c = f.counters()
+    assert (c["imu_late"], c["odo_late"], c["gps_late"], c["gps_late_applied"]) == (1, 1, 1, 1)
+    # equal timestamps are not late
+    assert f.process(OdoMeas(t_state, f.estimate().speed_mps, 0.05)).outcome == Outcome.ACCEPTED
+
+
+def test_timeouts_and_status(db, cfg):
+    f = TrackFilter(db, cfg)
+    assert f.estimate().status == FilterStatus.INITIALISING
+    assert f.process(OdoMeas(1.0, 1.0, 0.05)).outcome == Outcome.NOT_INITIALISED
+    run = generate(db, 1, 40.0, IMU, ODO, GPS, seed=17)
+    # drop every odometer sample between 20 and 25 s
+    t0 = run.t_s[0]
+    ms = [m for m in run.measurements if not (isinstance(m, OdoMeas) and t0 + 20 <= m.t_s < t0 + 25)]
+    statuses = []
+    for m in ms:
+        f.process(m)
+        statuses.append((m.t_s, f.estimate()))
+    during = [e for t, e in statuses if t0 + 22 <= t < t0 + 25]
+    assert all("odometer_timeout" in e.reasons and e.status == FilterStatus.DEGRADED for e in during)
+    assert f.counters()["odo_timeouts"] == 1
+    assert f.estimate().status == FilterStatus.NOMINAL
+    # no motion sensor at all for long: LOST, judged at a later time
+    later = f.estimate(at_s=f.estimate().epoch_s + 5.0)
+    assert later.status == FilterStatus.LOST and "no_motion_sensor" in later.reasons
+
+
+def test_deterministic_and_batch_identical(db, cfg):
+    run = generate(db, 1, 120.0, IMU, ODO, GPS, seed=18,
+                   faults=Faults(gps_jumps=((60.0, 65.0, 50.0, 0.0),), odo_slips=((30.0, 35.0, 1.2),)))
+    _, est_a, fa = run_filter(db, cfg, run.measurements)
+    _, est_b, fb = run_filter(db, cfg, run.measurements)
+    a = np.array([(e.epoch_s, e.arc_length_m, e.speed_mps, e.sigma_s_m) for e in est_a])
+    b = np.array([(e.epoch_s, e.arc_length_m, e.speed_mps, e.sigma_s_m) for e in est_b])
+    assert a.tobytes() == b.tobytes()
+    res = batch.replay(db, cfg, run.measurements)
+    c = np.column_stack((res.epoch_s, res.arc_length_m, res.speed_mps, res.sigma_s_m))
+    assert a.tobytes() == c.tobytes()
+    assert [e.status for e in est_a] == [FilterStatus(int(s)) for s in res.status]
+    assert fa.counters() == fb.counters()
