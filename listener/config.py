@@ -1,0 +1,236 @@
+"""Typed configuration of the listener service, loaded from TOML and validated at start.
+
+Every field carries its unit. ``load_config(path, overrides)`` reads a TOML file (see
+``listener/config/listener.example.toml`` for the documented example), applies command-line
+overrides written as dotted keys (``link.ack_timeout_s=3``) and raises :class:`ConfigError` naming the
+offending key on anything unknown, mistyped or out of range.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import tomllib
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from listener.defaults import DEFAULT_HOST, DEFAULT_LISTENER_PORT, DEFAULT_OBCU_PORT
+from listener.errors import ConfigError
+
+
+@dataclass(frozen=True)
+class InputConfig:
+    """UDP input and per-sender sequencing."""
+
+    bind: str = "0.0.0.0"  #: address the input socket binds to
+    port: int = DEFAULT_LISTENER_PORT  #: UDP port of INPUT_PROTOCOL [1..65535]
+    per_type_sequence: bool = False  #: scope sequence numbers per (sender, SENSOR_TYPE) instead of per sender
+    hold_time_s: float = 0.03  #: how long an out-of-order datagram waits for a gap to fill [s]
+    max_pending: int = 256  #: datagrams held per stream before the oldest gap is declared lost [count]
+    max_streams: int = 64  #: distinct senders tracked at once; idle ones are evicted beyond this [count]
+    receive_buffer_bytes: int = 4 * 1024 * 1024  #: SO_RCVBUF requested for the input socket [bytes]
+
+
+@dataclass(frozen=True)
+class ClockConfig:
+    """Mapping of arrival times onto the sensor-set timebase carried by STROBE."""
+
+    window_strobes: int = 120  #: STROBEs kept for the offset and skew estimate [count]
+    max_pending_undated: int = 512  #: undated measurements held until the first STROBE [count]
+    max_step_s: float = 1.0  #: an offset change larger than this resets the clock model [s]
+
+
+@dataclass(frozen=True)
+class MergeConfig:
+    """Time-ordered merge of the streams before the filter."""
+
+    hold_s: float = 0.0  #: extra wait before a measurement is released to the filter, in sensor time [s]
+    max_pending: int = 4096  #: measurements held in the merge at most [count]
+
+
+@dataclass(frozen=True)
+class LinkConfig:
+    """OUTPUT_PROTOCOL link to the OBCU, acks and retransmission."""
+
+    obcu_host: str = DEFAULT_HOST  #: OBCU address
+    obcu_port: int = DEFAULT_OBCU_PORT  #: OBCU UDP port [1..65535]
+    max_rate_hz: float = 100.0  #: cap on new outputs per second; 0 means one per filter update [Hz]
+    start_seq: int = 0  #: SEQ of the first output [0..65535]
+    degraded_after_s: float = 2.5  #: no ack for this long -> link DEGRADED [s]
+    down_after_s: float = 5.0  #: no ack for this long -> link DOWN [s]
+    #: resend the freshest estimate when nothing newer was sent for this long [s]
+    retransmit_interval_s: float = 0.5
+    max_retransmits: int = 10  #: resends of one estimate at most [count]
+    max_output_age_s: float = 1.0  #: an estimate older than this (sensor time) is never resent [s]
+    extended: bool = False  #: send the extended output form (protocol extension, off by default)
+
+
+@dataclass(frozen=True)
+class LogConfig:
+    """Structured logging and metrics."""
+
+    level: str = "info"  #: debug, info, warning or error
+    metrics_interval_s: float = 10.0  #: period of the metrics snapshot in the log [s]
+    warning_interval_s: float = 5.0  #: at most one warning of each kind per interval [s]
+
+
+@dataclass(frozen=True)
+class FilterSelection:
+    """Which filter preset the listener runs (see ``sfa.presets``)."""
+
+    imu: str = "mems-train"  #: IMU preset name
+    odometer: str = "wheel-odometer"  #: odometer preset name
+    gps: str = "standalone"  #: GNSS preset name
+
+
+@dataclass(frozen=True)
+class ListenerConfig:
+    """The whole listener configuration."""
+
+    track: str = ""  #: path of the SQLite track database ("" = bundled default)
+    input: InputConfig = field(default_factory=InputConfig)
+    clock: ClockConfig = field(default_factory=ClockConfig)
+    merge: MergeConfig = field(default_factory=MergeConfig)
+    link: LinkConfig = field(default_factory=LinkConfig)
+    log: LogConfig = field(default_factory=LogConfig)
+    filter: FilterSelection = field(default_factory=FilterSelection)
+    watchdog_max_lag_s: float = 0.5  #: event-loop lag beyond which WATCHDOG=1 is withheld [s]
+
+
+_SECTIONS = {
+    "input": InputConfig,
+    "clock": ClockConfig,
+    "merge": MergeConfig,
+    "link": LinkConfig,
+    "log": LogConfig,
+    "filter": FilterSelection,
+}
+
+
+def _coerce(key: str, value: Any, typ: Any) -> Any:
+    """Check ``value`` against the annotated type name ``typ`` and return it converted."""
+    if typ in ("float", float):
+        if isinstance(value, bool) or not isinstance(value, int | float):
+            raise ConfigError(f"{key}: expected a number, got {value!r}")
+        value = float(value)
+        if not math.isfinite(value):
+            raise ConfigError(f"{key}: must be finite, got {value!r}")
+        return value
+    if typ in ("int", int):
+        if isinstance(value, bool) or not isinstance(value, int):
+            raise ConfigError(f"{key}: expected an integer, got {value!r}")
+        return value
+    if typ in ("bool", bool):
+        if not isinstance(value, bool):
+            raise ConfigError(f"{key}: expected true or false, got {value!r}")
+        return value
+    if typ in ("str", str):
+        if not isinstance(value, str):
+            raise ConfigError(f"{key}: expected a string, got {value!r}")
+        return value
+    raise ConfigError(f"{key}: unsupported type {typ!r}")  # pragma: no cover - programming error
+
+
+def _build(cls: type, data: dict[str, Any], prefix: str) -> Any:
+    fields = {f.name: f for f in dataclasses.fields(cls)}
+    kwargs: dict[str, Any] = {}
+    for key, value in data.items():
+        name = f"{prefix}{key}"
+        if key not in fields:
+            raise ConfigError(f"{name}: unknown key (known: {', '.join(sorted(fields))})")
+        kwargs[key] = _coerce(name, value, fields[key].type)
+    return cls(**kwargs)
+
+
+def _validate(cfg: ListenerConfig) -> None:
+    def need(cond: bool, key: str, why: str) -> None:
+        if not cond:
+            raise ConfigError(f"{key}: {why}")
+
+    need(1 <= cfg.input.port <= 65535, "input.port", "must be in 1..65535")
+    need(cfg.input.hold_time_s >= 0.0, "input.hold_time_s", "must be >= 0")
+    need(cfg.input.hold_time_s <= 5.0, "input.hold_time_s", "must be <= 5 s")
+    need(cfg.input.max_pending >= 1, "input.max_pending", "must be >= 1")
+    need(cfg.input.max_streams >= 1, "input.max_streams", "must be >= 1")
+    need(cfg.input.receive_buffer_bytes >= 65536, "input.receive_buffer_bytes", "must be >= 65536")
+    need(cfg.clock.window_strobes >= 1, "clock.window_strobes", "must be >= 1")
+    need(cfg.clock.max_pending_undated >= 0, "clock.max_pending_undated", "must be >= 0")
+    need(cfg.clock.max_step_s > 0.0, "clock.max_step_s", "must be > 0")
+    need(cfg.merge.hold_s >= 0.0, "merge.hold_s", "must be >= 0")
+    need(cfg.merge.max_pending >= 1, "merge.max_pending", "must be >= 1")
+    need(1 <= cfg.link.obcu_port <= 65535, "link.obcu_port", "must be in 1..65535")
+    need(cfg.link.max_rate_hz >= 0.0, "link.max_rate_hz", "must be >= 0")
+    need(0 <= cfg.link.start_seq <= 65535, "link.start_seq", "must be in 0..65535")
+    need(cfg.link.degraded_after_s > 0.0, "link.degraded_after_s", "must be > 0")
+    need(
+        cfg.link.down_after_s > cfg.link.degraded_after_s,
+        "link.down_after_s",
+        "must be greater than link.degraded_after_s",
+    )
+    need(cfg.link.retransmit_interval_s > 0.0, "link.retransmit_interval_s", "must be > 0")
+    need(cfg.link.max_retransmits >= 0, "link.max_retransmits", "must be >= 0")
+    need(cfg.link.max_output_age_s > 0.0, "link.max_output_age_s", "must be > 0")
+    need(
+        cfg.log.level in ("debug", "info", "warning", "error"),
+        "log.level",
+        "must be one of debug, info, warning, error",
+    )
+    need(cfg.log.metrics_interval_s > 0.0, "log.metrics_interval_s", "must be > 0")
+    need(cfg.log.warning_interval_s >= 0.0, "log.warning_interval_s", "must be >= 0")
+    need(cfg.watchdog_max_lag_s > 0.0, "watchdog_max_lag_s", "must be > 0")
+
+
+def _set_dotted(tree: dict[str, Any], dotted: str, raw: str) -> None:
+    """Apply one ``section.key=value`` override; the value is parsed as a TOML value, else a string."""
+    parts = dotted.split(".")
+    if not all(parts):
+        raise ConfigError(f"override {dotted!r}: empty key component")
+    try:
+        value = tomllib.loads(f"v = {raw}")["v"]
+    except tomllib.TOMLDecodeError:
+        value = raw
+    node = tree
+    for part in parts[:-1]:
+        child = node.setdefault(part, {})
+        if not isinstance(child, dict):
+            raise ConfigError(f"override {dotted!r}: {part} is not a section")
+        node = child
+    node[parts[-1]] = value
+
+
+def config_from_dict(data: dict[str, Any]) -> ListenerConfig:
+    """Build and validate a :class:`ListenerConfig` from a parsed TOML tree."""
+    kwargs: dict[str, Any] = {}
+    top = {f.name: f for f in dataclasses.fields(ListenerConfig)}
+    for key, value in data.items():
+        if key in _SECTIONS:
+            if not isinstance(value, dict):
+                raise ConfigError(f"{key}: expected a table")
+            kwargs[key] = _build(_SECTIONS[key], value, f"{key}.")
+        elif key in top:
+            kwargs[key] = _coerce(key, value, top[key].type)
+        else:
+            raise ConfigError(f"{key}: unknown key (known: {', '.join(sorted(top))})")
+    cfg = ListenerConfig(**kwargs)
+    _validate(cfg)
+    return cfg
+
+
+def load_config(path: str | Path | None = None, overrides: list[str] | None = None) -> ListenerConfig:
+    """Read the TOML file at ``path`` (optional), apply ``key=value`` overrides, validate."""
+    tree: dict[str, Any] = {}
+    if path is not None:
+        try:
+            with open(path, "rb") as fh:
+                tree = tomllib.load(fh)
+        except FileNotFoundError as exc:
+            raise ConfigError(f"{path}: no such configuration file") from exc
+        except tomllib.TOMLDecodeError as exc:
+            raise ConfigError(f"{path}: not valid TOML: {exc}") from exc
+    for item in overrides or []:
+        if "=" not in item:
+            raise ConfigError(f"override {item!r}: expected KEY=VALUE")
+        key, raw = item.split("=", 1)
+        _set_dotted(tree, key.strip(), raw.strip())
+    return config_from_dict(tree)

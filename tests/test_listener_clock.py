@@ -1,0 +1,74 @@
+"""STROBE clock model: rejects positive delay jitter, follows skew, resets on steps."""
+
+import numpy as np
+
+from listener.clock import StrobeClock
+from listener.config import ClockConfig
+
+
+def test_unsynced_before_first_strobe():
+    clock = StrobeClock()
+    assert not clock.synced
+    assert clock.to_sensor_time(5.0) is None
+
+
+def test_jitter_is_rejected_by_the_lower_delay_envelope():
+    rng = np.random.default_rng(7)
+    clock = StrobeClock(ClockConfig())
+    offset = 1.7e9 - 100.0  # sensor time = listener time + offset
+    d_min = 0.0002
+    errors = []
+    for k in range(240):
+        sensor_t = 1.7e9 + k
+        arrival = sensor_t - offset + d_min + rng.exponential(0.005)  # 5 ms mean jitter
+        clock.on_strobe(sensor_t, arrival)
+        if k >= 10:
+            probe = 100.0 + k + 0.5
+            errors.append(clock.to_sensor_time(probe) - (probe + offset))
+    errors = np.abs(np.array(errors))
+    # the estimate sits at the minimum delay, far below the 5 ms mean jitter
+    assert errors.max() < 0.0015
+    assert np.median(errors) < 0.0006
+
+
+def test_skew_is_followed():
+    clock = StrobeClock(ClockConfig())
+    skew = 50e-6  # sensor clock runs 50 ppm fast
+    for k in range(60):
+        arrival = float(k)
+        clock.on_strobe(1000.0 + k * (1 + skew), arrival + 0.0001)
+    probe = 59.5
+    expected = 1000.0 + (probe - 0.0001) * (1 + skew)
+    assert abs(clock.to_sensor_time(probe) - expected) < 1e-4
+
+
+def test_step_resets_the_model():
+    clock = StrobeClock(ClockConfig(max_step_s=1.0))
+    for k in range(5):
+        clock.on_strobe(500.0 + k, float(k))
+    clock.on_strobe(9000.0, 5.0)  # sensor set restarted its clock
+    assert clock.resets == 1
+    assert abs(clock.to_sensor_time(5.0) - 9000.0) < 1e-9
+
+
+def test_non_finite_strobes_are_ignored():
+    clock = StrobeClock()
+    clock.on_strobe(float("nan"), 1.0)
+    clock.on_strobe(1.0, float("inf"))
+    assert not clock.synced
+
+
+def test_skew_and_jitter_together():
+    rng = np.random.default_rng(11)
+    clock = StrobeClock(ClockConfig())
+    skew = 80e-6
+    errs = []
+    for k in range(300):
+        arrival = float(k) + 0.0002 + rng.exponential(0.005)
+        sensor_t = 2000.0 + k * (1 + skew)
+        clock.on_strobe(sensor_t, arrival)
+        if k >= 60:
+            probe = k + 0.5  # a measurement sent at listener time k + 0.5 - d_min
+            truth = 2000.0 + (probe - 0.0002) * (1 + skew)
+            errs.append(abs(clock.to_sensor_time(probe) - truth))
+    assert max(errs) < 0.0015, max(errs)
