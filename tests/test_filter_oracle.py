@@ -48,9 +48,11 @@ class Oracle:
     def init(self, m: InitMeas):
         c = self.cfg
         self.ekf.x = np.array([[m.arc_length_m, m.speed_mps, 0, 0, 0, 0, 0]], dtype=float).T  # column
-        self.ekf.P = np.diag([c.init_sigma_s_m ** 2, c.init_sigma_v_mps ** 2, c.init_sigma_accel_bias_mps2 ** 2,
-                              c.init_sigma_odo_scale ** 2, c.gps_gm_sigma_m ** 2, c.gps_gm_sigma_m ** 2,
-                              c.init_sigma_gyro_bias_radps ** 2])
+        self.ekf.P = np.diag([
+            c.init_sigma_s_m ** 2, c.init_sigma_v_mps ** 2, c.init_sigma_accel_bias_mps2 ** 2,
+            c.init_sigma_odo_scale ** 2, c.gps_gm_sigma_m ** 2, c.gps_gm_sigma_m ** 2,
+            c.init_sigma_gyro_bias_radps ** 2,
+        ])
         g = np.interp(m.arc_length_m, self.grade_s, self.grade)
         self.fx = 9.80665 * g / math.sqrt(1 + g * g)  # until the first IMU: constant speed
         self.t = m.t_s
