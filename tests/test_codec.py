@@ -523,3 +523,10 @@ def test_every_header_with_a_consistent_length_is_classified():
                         assert exc.reason is RejectReason.RANGE and "sigma" in exc.detail
                 else:
                     assert (sensor_type_of(msg), n_int, n_double) in allowed
+
+
+def test_protocol_doc_usage_example_runs():
+    text = DOC.read_text(encoding="utf-8")
+    blocks = re.findall(r"```python\n(.*?)```", text, flags=re.S)
+    assert len(blocks) == 1
+    exec(compile(blocks[0], str(DOC), "exec"), {})  # noqa: S102 - our own documentation; asserts inside
