@@ -152,18 +152,21 @@ def stitch_parts(
     refs: list[str] = []
     used_pieces: set[int] = set()
     gaps: list[float] = []
+    bridged = False
     for u, v in zip(path_nodes[:-1], path_nodes[1:], strict=True):
         cand = [e for e in edges if {e[0], e[1]} == {u, v}]
         e = min(cand, key=lambda e: (e[2], e[3]))
         if e[3] < 0:
             gaps.append(e[2])
-            continue  # the bridge is the straight segment between the two pieces
+            bridged = True  # the bridge is the straight segment between the two pieces
+            continue
         c, _, r = pieces[e[3]]
         used_pieces.add(e[3])
         if node[2 * e[3]] != u:
             c, r = c[::-1], r[::-1]
-        if coords:
+        if coords and not bridged:
             c, r = c[1:], r[1:]  # the joint vertex is already there
+        bridged = False
         coords.append(c)
         refs.extend(r)
     dropped = [k for k in range(len(pieces)) if k not in used_pieces]
