@@ -439,7 +439,6 @@ def _header_key(t: int, n_int: int, n_double: int) -> int:
 class _Tables:
     by_key: dict[int, _Form]  # header key -> form
     by_shape: dict[tuple[type, int, int], _Form]  # (class, n_int, n_double) -> form
-    header: struct.Struct
 
 
 def _build_tables(byteorder: str) -> _Tables:
@@ -450,7 +449,7 @@ def _build_tables(byteorder: str) -> _Tables:
             form = _compile_form(t, ints, dbls, byteorder)
             by_key[_header_key(int(t), len(ints), len(dbls))] = form
             by_shape[(lay.cls, len(ints), len(dbls))] = form
-    return _Tables(by_key, by_shape, struct.Struct(f"{byteorder}BHBB"))
+    return _Tables(by_key, by_shape)
 
 
 _TABLES: Final[dict[str, _Tables]] = {bo: _build_tables(bo) for bo in BYTEORDERS}
@@ -458,6 +457,10 @@ _DECODERS: Final[dict[str, dict[int, tuple[int, Callable[[bytes], InputMessage]]
     bo: {key: (form.size, form.build) for key, form in tables.by_key.items()}
     for bo, tables in _TABLES.items()
 }  # the hot path's view: header key -> (datagram size, decode function)
+_HEADERS: Final[dict[str, dict[int, tuple[int, SensorType, int, int]]]] = {
+    bo: {key: (f.size, f.sensor_type, f.n_int, f.n_double) for key, f in tables.by_key.items()}
+    for bo, tables in _TABLES.items()
+}  # decode_header's view: header key -> (datagram size, type, N_INT, N_DOUBLE)
 
 
 def _tables(byteorder: str) -> _Tables:
@@ -524,16 +527,20 @@ def decode_header(data: bytes, byteorder: str = "<") -> tuple[SensorType, int, i
     """Validate only the header and the length; return ``(sensor_type, seq, n_int, n_double)``.
 
     Used to route and sequence a datagram before (or instead of) the full decode. Raises DecodeError
-    with SHORT, TYPE, LENGTH or FORM; the payload values are not looked at.
+    with NOT_BYTES, SHORT, TYPE, LENGTH or FORM; the payload values are not looked at.
     """
     if type(data) is not bytes:
         data = _as_bytes(data)
+    headers = _HEADERS.get(byteorder)
+    if headers is None:
+        _tables(byteorder)  # raises ConfigError
     n = len(data)
-    tables = _tables(byteorder)
-    form = tables.by_key.get(data[0] << 16 | data[3] << 8 | data[4]) if n >= HEADER_SIZE else None
-    if form is None or n != form.size:
-        raise _reject_header(data, n)
-    return form.sensor_type, tables.header.unpack_from(data)[1], form.n_int, form.n_double
+    if n >= HEADER_SIZE:
+        entry = headers.get(data[0] << 16 | data[3] << 8 | data[4])
+        if entry is not None and n == entry[0]:
+            seq = data[1] | data[2] << 8 if byteorder == "<" else data[1] << 8 | data[2]
+            return entry[1], seq, entry[2], entry[3]
+    raise _reject_header(data, n)
 
 
 def encode_input(msg: InputMessage, byteorder: str = "<", *, validate: bool = True) -> bytes:
