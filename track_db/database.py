@@ -174,8 +174,11 @@ class TrackDatabase:
         if v.shape[0] < 2 or prof is None:
             raise SchemaError(f"{self.path}: line {lid} has no geometry or no profile")
         step, n, *blobs = prof
-        arrays = [np.frombuffer(b, dtype="<f8").astype(np.float64) for b in blobs]
-        if any(a.size != n for a in arrays):
+        try:
+            arrays = [np.frombuffer(b, dtype="<f8").astype(np.float64) for b in blobs]
+        except (TypeError, ValueError):
+            arrays = []
+        if len(arrays) != 3 or any(a.size != n for a in arrays):
             raise SchemaError(f"{self.path}: profile of line {lid} is damaged")
         line = TrackLine(
             line_id=lid,
