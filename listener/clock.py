@@ -7,9 +7,9 @@ the *largest* recent ``o_k`` is the least delayed and the best estimate (the low
 as NTP's clock filter keeps the minimum-delay sample). A slow rate difference (skew) between the
 listener's monotonic clock and the sensor set is estimated by the linear-programming method of Moon,
 Skelly and Towsley (1999): the line lying above every ``o_k`` of the window that minimises the summed
-distance to them, which is the edge of their upper convex hull spanning the window's mean time. Jitter therefore never drags the
-estimate; only the minimum delay (typically tens of microseconds on a switched Ethernet) stays as
-a constant bias, which is below every sensor's sampling period.
+distance to them, which is the edge of their upper convex hull spanning the window's mean time.
+Jitter therefore never drags the estimate; only the minimum delay (typically tens of microseconds on
+a switched Ethernet) stays as a constant bias, which is below every sensor's sampling period.
 
 A step larger than ``max_step_s`` between the prediction and a new STROBE (sensor-set clock reset,
 listener restart) discards the window and restarts the estimate from that STROBE.

@@ -55,7 +55,7 @@ class LinkConfig:
 
     obcu_host: str = DEFAULT_HOST  #: OBCU address
     obcu_port: int = DEFAULT_OBCU_PORT  #: OBCU UDP port [1..65535]
-    max_rate_hz: float = 100.0  #: cap on new outputs per second; 0 means one per filter update [Hz]
+    max_rate_hz: float = 0.0  #: cap on new outputs per second; 0 means one per filter update [Hz]
     start_seq: int = 0  #: SEQ of the first output [0..65535]
     degraded_after_s: float = 2.5  #: no ack for this long -> link DEGRADED [s]
     down_after_s: float = 5.0  #: no ack for this long -> link DOWN [s]

@@ -12,7 +12,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
-from listener.codec import DecodeError, decode_output, encode_ack
+from listener.codec import DecodeError, decode_output, decode_output_extended, encode_ack
 from listener.defaults import DEFAULT_OBCU_PORT
 from listener.serial import serial_gt
 
@@ -38,6 +38,11 @@ class Received:
     epoch: float  #: sensor-set time of the estimate [s]
     arc_length: float  #: [m]
     size: int  #: datagram length [bytes]
+    speed: float | None = None  #: extended form only [m/s]
+    interval_low: float | None = None  #: extended form only [m]
+    interval_high: float | None = None  #: extended form only [m]
+    status: int | None = None  #: extended form only (filter status code)
+    line_id: int | None = None  #: extended form only
 
 
 @dataclass
@@ -90,11 +95,17 @@ class MockObcu:
             self.stats.ignored_silent += 1
             return None
         try:
-            msg = decode_output(data[:18]) if len(data) > 18 else decode_output(data)
+            if len(data) > 18:
+                ext = decode_output_extended(data)
+                rec = Received(now, ext.seq, ext.epoch, ext.arc_length, len(data), ext.speed,
+                               ext.interval_low, ext.interval_high, ext.status, ext.line_id)
+            else:
+                msg = decode_output(data)
+                rec = Received(now, msg.seq, msg.epoch, msg.arc_length, len(data))
         except DecodeError:
             self.stats.malformed += 1
             return None
-        rec = Received(now, msg.seq, msg.epoch, msg.arc_length, len(data))
+        msg = rec
         self.stats.received += 1
         self.stats.by_size[len(data)] = self.stats.by_size.get(len(data), 0) + 1
         if self.newest_seq is None or serial_gt(msg.seq, self.newest_seq):

@@ -23,6 +23,10 @@ def _window(text: str) -> tuple[float, float]:
     return a, b
 
 
+def _opt(value: object) -> str:
+    return "" if value is None else repr(value)
+
+
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--port", type=int, default=None, help="UDP port for outputs (default 48001)")
     parser.add_argument("--bind", default="127.0.0.1", help="address to bind (default 127.0.0.1)")
@@ -67,7 +71,8 @@ def run(args: argparse.Namespace) -> int:
     csv_file = open(args.csv, "w", newline="") if args.csv else None  # noqa: SIM115 - closed below
     writer = csv.writer(csv_file) if csv_file else None
     if writer:
-        writer.writerow(["time_s", "seq", "epoch", "arc_length", "size"])
+        writer.writerow(["time_s", "seq", "epoch", "arc_length", "size", "speed", "interval_low",
+                         "interval_high", "status", "line_id"])
 
     async def main() -> int:
         loop = asyncio.get_running_loop()
@@ -87,7 +92,8 @@ def run(args: argparse.Namespace) -> int:
                     state["last_rx"] = now
                     if writer:
                         writer.writerow([f"{now - start:.6f}", rec.seq, repr(rec.epoch), repr(rec.arc_length),
-                                         rec.size])
+                                         rec.size, _opt(rec.speed), _opt(rec.interval_low),
+                                         _opt(rec.interval_high), _opt(rec.status), _opt(rec.line_id)])
                 rearm()
 
             def error_received(self, exc):
