@@ -25,6 +25,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "obcu": ("listener.obcu_cli", "mock on-board control unit: receives outputs, acks, logs"),
     "replay": ("tools.replay_cli", "offline replay of a capture through the listener pipeline"),
     "demo": ("tools.demo", "the whole system on loopback with the bundled track"),
+    "convert": ("tools.convert_cli", "convert real sensor logs (smartLoc, Dresden) into captures and tracks"),
     "faults": ("tools.faults_cli", "fault-injection proxy and reliability campaigns"),
     "bench": ("tools.bench", "the benchmark suite"),
 }
