@@ -336,3 +336,29 @@ def test_locate_ties_go_to_the_lowest_line_id(jena):
     p = jena.locate(lat, lon)
     assert p.distance_m < 1e-6
     assert p.line_id == min(j for j in (1, 2, 4, 10) if jena.line(j).project_latlon(lat, lon)[1] ** 2 < 1e-12)
+
+
+@pytest.mark.parametrize("which", ["jena", "synthetic"])
+def test_scalar_fast_path_equals_vectorised_path(which, request):
+    db = request.getfixturevalue(which)
+    rng = np.random.default_rng(5)
+    for line in all_lines(db):
+        s = np.concatenate(([0.0, line.length_m], line.s_m[1:-1:7], rng.uniform(0.0, line.length_m, 300)))
+        for name in ("point_at", "tangent_at", "heading_at", "curvature_at", "grade_at"):
+            query = getattr(line, name)
+            vectorised = query(s)
+            scalar = [query(float(x)) for x in s]
+            if isinstance(vectorised, tuple):
+                for j in range(2):
+                    np.testing.assert_array_equal([v[j] for v in scalar], vectorised[j], err_msg=name)
+            else:
+                np.testing.assert_array_equal(scalar, vectorised, err_msg=name)
+        assert isinstance(line.curvature_at(1), float)  # ints take the scalar path too
+
+
+@pytest.mark.parametrize("bad", [-0.5, 1e9, float("nan"), float("inf")])
+def test_bad_scalar_arc_length_is_a_query_error(jena, bad):
+    line = jena.line()
+    for query in (line.point_at, line.tangent_at, line.heading_at, line.curvature_at, line.grade_at):
+        with pytest.raises(QueryError):
+            query(bad)

@@ -31,5 +31,5 @@ __all__ = [
 
 
 def default_database_path() -> Path:
-    """The bundled default database: the Jena tram network (OpenStreetMap, ODbL), track_db/data/jena-tram.db."""
+    """The bundled default database: the Jena tram network (OpenStreetMap, ODbL 1.0), data/jena-tram.db."""
     return Path(__file__).resolve().parent / "data" / "jena-tram.db"

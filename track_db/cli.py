@@ -85,7 +85,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     p = sub.add_parser(
         "locate",
         help="project a position onto the network (or one line)",
-        description="Nearest line, arc length and signed lateral offset (> 0 right of the direction of travel).",
+        description="Nearest line, arc length and signed lateral offset (> 0 right of the direction of "
+        "travel). Default database: the bundled Jena network.",
     )
     p.add_argument("lat", type=float, metavar="LAT", help="latitude [deg]")
     p.add_argument("lon", type=float, metavar="LON", help="longitude [deg]")
@@ -149,6 +150,27 @@ def _run_import(args: argparse.Namespace) -> int:
     return 0
 
 
+#: branch points closer than this are reported as one junction area by ``info`` [m]
+JUNCTION_AREA_M = 100.0
+
+
+def _junction_areas(db, junctions) -> int:
+    """Number of clusters of branch points (single linkage at JUNCTION_AREA_M)."""
+    import numpy as np
+    from scipy.sparse.csgraph import connected_components
+    from scipy.spatial import cKDTree
+
+    nodes = {}
+    for j in junctions:
+        nodes.setdefault(j.node_id, (j.lat_deg, j.lon_deg))
+    if not nodes:
+        return 0
+    lat, lon = np.array(list(nodes.values())).T
+    e, n = db.to_local(lat, lon)
+    tree = cKDTree(np.column_stack((e, n)))
+    return int(connected_components(tree.sparse_distance_matrix(tree, JUNCTION_AREA_M), directed=False)[0])
+
+
 def _summary(db) -> dict:
     lines = db.lines()
     junctions = db.junctions()
@@ -173,6 +195,7 @@ def _summary(db) -> dict:
         ],
         "total_length_m": sum(i.length_m for i in lines),
         "junction_nodes": len({j.node_id for j in junctions}),
+        "junction_areas": _junction_areas(db, junctions),
         "junction_pairs": len(junctions),
         "junction_kinds": kinds,
         "tightest_radius_m": min((i.min_radius_m for i in lines if i.min_radius_m), default=None),
@@ -187,22 +210,24 @@ def _run_info(args: argparse.Namespace) -> int:
             return 0
         print(f"{info['path']}")
         print(f"projection: {info['projection']}")
+        total_km = info["total_length_m"] / 1000
         print(
-            f"{len(info['lines'])} lines, {info['total_length_m'] / 1000:.3f} km in total; default line {info['default_line_id']}"
+            f"{len(info['lines'])} lines, {total_km:.3f} km in total; default line {info['default_line_id']}"
         )
         print(f"{'id':>4}  {'length_m':>10}  {'vertices':>8}  {'min_radius_m':>12}  name")
         for ln in info["lines"]:
             r = ln["min_radius_m"]
             radius = f"{r:12.1f}" if r else f"{'straight':>12}"
             mark = "*" if ln["line_id"] == info["default_line_id"] else " "
-            print(
-                f"{ln['line_id']:>4}{mark} {ln['length_m']:10.1f}  {ln['n_vertices']:8d}  {radius}  {ln['name']}"
-            )
+            row = f"{ln['line_id']:>4}{mark} {ln['length_m']:10.1f}  {ln['n_vertices']:8d}  {radius}"
+            print(f"{row}  {ln['name']}")
         kinds = ", ".join(f"{v} {k}" for k, v in sorted(info["junction_kinds"].items())) or "none"
         tight = info["tightest_radius_m"]
         print(f"tightest radius: {tight:.1f} m" if tight else "tightest radius: none (all straight)")
         print(
-            f"junctions: {info['junction_nodes']} branch points, {info['junction_pairs']} line pairs ({kinds})"
+            f"junctions: {info['junction_nodes']} branch points in {info['junction_areas']} areas"
+            f" (branch points within {JUNCTION_AREA_M:g} m merged),"
+            f" {info['junction_pairs']} line pairs ({kinds})"
         )
     return 0
 

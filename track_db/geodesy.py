@@ -50,7 +50,7 @@ def tmerc_proj_string(lat0_deg: float, lon0_deg: float) -> str:
 
 
 def centred_proj_string(lat_deg: np.ndarray, lon_deg: np.ndarray) -> str:
-    """Projection chosen for a new database: transverse Mercator centred on the bounding box of its vertices."""
+    """Projection of a new database: transverse Mercator centred on the bounding box of its vertices."""
     lat = np.asarray(lat_deg, dtype=np.float64)
     lon = np.asarray(lon_deg, dtype=np.float64)
     lat0 = 0.5 * (float(lat.min()) + float(lat.max()))

@@ -1,7 +1,9 @@
 """TrackLine: the in-memory geometry of one line and the per-measurement queries of the filter.
 
-Every query accepts a float or a numpy array (vectorised) and returns the same shape. Arc lengths
-must be finite and within [0, length_m]; anything else raises QueryError.
+Every query accepts a float or a numpy array (vectorised) and returns the same shape: a Python float
+in gives floats out through a pure-Python fast path (about 1 us per query, for per-measurement use);
+arrays (or numpy scalars) go through the vectorised numpy path. Both give identical results. Arc
+lengths must be finite and within [0, length_m]; anything else raises QueryError.
 
 Conventions (docs/architecture.md): local (east, north) metres of the database's projection;
 heading clockwise from north; curvature > 0 turning right (FRD: yaw rate gz = v * k); lateral offset
@@ -10,6 +12,8 @@ heading clockwise from north; curvature > 0 turning right (FRD: yaw rate gz = v 
 
 from __future__ import annotations
 
+import math
+from bisect import bisect_right
 from functools import cached_property
 
 import numpy as np
@@ -80,11 +84,46 @@ class TrackLine:
         self._tn = dn / seg_len
         for arr in (self.s_m, self.lat_deg, self.lon_deg, self.alt_m, self.east_m, self.north_m):
             arr.setflags(write=False)
+        # plain-Python copies for the scalar fast path (one query per measurement: no numpy overhead)
+        self._s_list = self.s_m.tolist()
+        self._seg_list = list(
+            zip(
+                self.s_m[:-1].tolist(),
+                self._ds.tolist(),
+                self.east_m[:-1].tolist(),
+                self.north_m[:-1].tolist(),
+                de.tolist(),
+                dn.tolist(),
+                self._te.tolist(),
+                self._tn.tolist(),
+                strict=True,
+            )
+        )
+        self._n_prof = int(self.heading_rad.size)
+        self._heading_list = self.heading_rad.tolist()
+        self._curv_list = self.curvature_per_m.tolist()
+        self._grade_list = self.grade.tolist()
 
     def __repr__(self) -> str:
         return f"TrackLine(line_id={self.line_id}, name={self.name!r}, length_m={self.length_m:.3f})"
 
     # ---- arc length -> geometry -------------------------------------------------------------
+    def _scalar_s(self, s: float) -> float:
+        if not math.isfinite(s):
+            raise QueryError(f"line {self.line_id}: arc length must be finite")
+        if s < -_S_SLACK_M or s > self.length_m + _S_SLACK_M:
+            raise QueryError(f"line {self.line_id}: arc length {s:.3f} m outside [0, {self.length_m:.3f}] m")
+        return min(max(s, 0.0), self.length_m)
+
+    def _scalar_segment(self, s: float):
+        i = min(max(bisect_right(self._s_list, s) - 1, 0), len(self._seg_list) - 1)
+        return self._seg_list[i]
+
+    def _scalar_cell(self, s: float) -> tuple[int, float]:
+        u = s / self.profile_step_m
+        i = min(max(int(u), 0), self._n_prof - 2)
+        return i, u - i
+
     def _s(self, s_m) -> np.ndarray:
         s = np.asarray(s_m, dtype=np.float64)
         if not np.all(np.isfinite(s)):
@@ -103,6 +142,11 @@ class TrackLine:
 
     def point_at(self, s_m):
         """(east_m, north_m) of the point at arc length s_m: linear within each segment."""
+        if type(s_m) is float or type(s_m) is int:
+            s = self._scalar_s(float(s_m))
+            s0, ds, e0, n0, de, dn, _, _ = self._scalar_segment(s)
+            t = (s - s0) / ds
+            return e0 + t * de, n0 + t * dn
         s = self._s(s_m)
         i, t = self._segment(s)
         e = self.east_m[i] + t * self._de[i]
@@ -111,6 +155,9 @@ class TrackLine:
 
     def tangent_at(self, s_m):
         """(te, tn): unit tangent of the segment at s_m in the local frame, towards increasing s."""
+        if type(s_m) is float or type(s_m) is int:
+            seg = self._scalar_segment(self._scalar_s(float(s_m)))
+            return seg[6], seg[7]
         s = self._s(s_m)
         i, _ = self._segment(s)
         return _shape_like(s_m, self._te[i]), _shape_like(s_m, self._tn[i])
@@ -130,11 +177,31 @@ class TrackLine:
 
     def heading_at(self, s_m):
         """Smoothed heading [rad], clockwise from north (0 north, pi/2 east), unwrapped along the line."""
+        if type(s_m) is float or type(s_m) is int:
+            i, t = self._scalar_cell(self._scalar_s(float(s_m)))
+            y, dy, h = self._heading_list, self._curv_list, self.profile_step_m
+            t2 = t * t
+            t3 = t2 * t
+            return (
+                (2 * t3 - 3 * t2 + 1) * y[i]
+                + (t3 - 2 * t2 + t) * h * dy[i]
+                + (-2 * t3 + 3 * t2) * y[i + 1]
+                + (t3 - t2) * h * dy[i + 1]
+            )
         s = self._s(s_m)
         return _shape_like(s_m, hermite_value(s, self.profile_step_m, self.heading_rad, self.curvature_per_m))
 
     def curvature_at(self, s_m):
         """Smoothed signed curvature [1/m] = d(heading_at)/ds; > 0 turning right (clockwise)."""
+        if type(s_m) is float or type(s_m) is int:
+            i, t = self._scalar_cell(self._scalar_s(float(s_m)))
+            y, dy = self._heading_list, self._curv_list
+            t2 = t * t
+            return (
+                ((6 * t2 - 6 * t) * y[i] + (-6 * t2 + 6 * t) * y[i + 1]) / self.profile_step_m
+                + (3 * t2 - 4 * t + 1) * dy[i]
+                + (3 * t2 - 2 * t) * dy[i + 1]
+            )
         s = self._s(s_m)
         return _shape_like(
             s_m, hermite_derivative(s, self.profile_step_m, self.heading_rad, self.curvature_per_m)
@@ -142,6 +209,10 @@ class TrackLine:
 
     def grade_at(self, s_m):
         """Smoothed grade dAlt/ds [dimensionless], > 0 climbing; 0 on lines without altitude."""
+        if type(s_m) is float or type(s_m) is int:
+            i, t = self._scalar_cell(self._scalar_s(float(s_m)))
+            g = self._grade_list
+            return g[i] + t * (g[i + 1] - g[i])
         s = self._s(s_m)
         return _shape_like(s_m, linear_value(s, self.profile_step_m, self.grade))
 

@@ -76,8 +76,8 @@ def load_source(src: str | Path, fmt: str | None, options: ImportOptions) -> Imp
             continue  # not numeric: validation reports it with its row
         if turn > CUSP_DEG:
             notes.append(
-                f"{line.label or line.name}: the polyline turns by {turn:.0f} deg at one vertex (a reversal cusp: "
-                "the route doubles back); its curvature there is not drivable"
+                f"{line.label or line.name}: the polyline turns by {turn:.0f} deg at one vertex "
+                "(a reversal cusp: the route doubles back); its curvature there is not drivable"
             )
     batch = ImportBatch(batch.lines, batch.stops, notes)
     if options.name is not None:

@@ -150,7 +150,8 @@ def load_geojson(src: Path, options: ImportOptions) -> ImportBatch:
             coords, refs = res.coords, res.refs
             if res.parts_dropped or res.gaps_bridged_m:
                 notes.append(
-                    f"{label}: {res.parts_used} parts stitched, {res.parts_dropped} off the main path dropped "
+                    f"{label}: {res.parts_used} parts stitched, {res.parts_dropped} off the main path "
+                    "dropped "
                     f"({res.dropped_length_m:.0f} m), {len(res.gaps_bridged_m)} gaps bridged"
                 )
         lines.append(
