@@ -2,8 +2,9 @@
 
 Measurements are packed once into arrays (``pack``), GNSS positions converted to the database's local
 frame in one vectorised call, and ``run_packed`` steps through them with no Python object in the loop.
-The batch path follows one line (the one of the first GROUND TRUTH); junction hypotheses need the
-per-message ``TrackFilter``.
+The batch path follows one line (the one of the first GROUND TRUTH) in a known sense of travel
+(``InitMeas.direction``, +1 when unknown); junction and direction hypotheses need the per-message
+``TrackFilter``.
 """
 
 from __future__ import annotations
@@ -30,7 +31,7 @@ class Packed:
 
     IMU: fx, fy, fz [m/s^2], wx, wy, wz [rad/s]; odometer: speed, sigma [m/s]; GNSS: east, north [m],
     sigma_h [m] (NaN: not reported), fix quality (-1: not reported); init: s [m], v [m/s],
-    line id (-1: default).
+    line id (-1: default), direction (+1/-1; an unknown direction is taken as +1 here).
     """
 
     kind: np.ndarray  #: int64
@@ -82,6 +83,7 @@ def pack(measurements, track) -> Packed:
             vals[i, 0] = m.arc_length_m
             vals[i, 1] = m.speed_mps
             vals[i, 2] = -1.0 if m.line_id is None else m.line_id
+            vals[i, 3] = 1.0 if m.direction is None else m.direction
         else:
             raise MeasurementTypeError(f"not a filter measurement: {type(m).__name__}")
         t[i] = m.t_s
@@ -117,7 +119,7 @@ def run_packed(kind, t, vals, x, P, aux, cnt, cfg, ts, te, tn, tg, tk, out_f, ou
             fq = -1 if not math.isfinite(v[3]) else int(v[3])
             o = K.step_gps(x, P, aux, cnt, cfg, ts, te, tn, tg, ti, v[0], v[1], v[2], fq)
         elif k == 8:
-            o = K.step_init(x, P, aux, cnt, cfg, ts, tg, ti, v[0], v[1])
+            o = K.step_init(x, P, aux, cnt, cfg, ts, tg, ti, v[0], v[1], v[3])
         else:
             o = K.O_INVALID
         st, bits, sig = K.status_of(x, P, aux, cfg, aux[L.A_T_STATE])
@@ -164,6 +166,7 @@ def warm_up_batch(cfg: np.ndarray) -> None:
     kind = np.array([8, 1, 2, 3], dtype=np.int64)
     t = np.array([0.0, 0.01, 0.02, 0.03])
     vals = np.zeros((4, NV))
+    vals[0, 3] = 1.0
     vals[1, 2] = -9.8
     vals[2, 1] = 0.05
     vals[3, 2] = math.nan

@@ -37,7 +37,7 @@ class Estimate:
 
     epoch_s: float  #: time of the estimate [s]
     arc_length_m: float  #: arc length on ``line_id`` [m]
-    speed_mps: float  #: speed along the track [m/s]
+    speed_mps: float  #: speed in the train's forward direction [m/s]
     sigma_s_m: float  #: 1-sigma of the arc length [m]
     interval_low_m: float  #: lower bound of the arc length at ``confidence`` (under-reading side) [m]
     interval_high_m: float  #: upper bound (over-reading side) [m]
@@ -48,10 +48,11 @@ class Estimate:
     lon_deg: float  #: WGS84 longitude of the estimate [deg]
     sigma_v_mps: float = math.nan  #: 1-sigma of the speed [m/s]
     confidence: float = 0.95  #: two-sided confidence of the interval [probability]
-    hypotheses: int = 0  #: line hypotheses currently kept
+    hypotheses: int = 0  #: line / direction hypotheses currently kept
+    direction: int = 0  #: +1 the train's forward is increasing arc length, -1 decreasing, 0 unknown
 
 
-@dataclass
+@dataclass(eq=False)
 class _Hypothesis:
     """State arrays of one line hypothesis."""
 
@@ -62,9 +63,31 @@ class _Hypothesis:
     cnt: np.ndarray = field(default_factory=lambda: np.zeros(L.NCNT, dtype=np.int64))
     spawned: frozenset = frozenset()  #: junction keys this lineage already branched at
 
-    def copy_to(self, line: TrackArrays, s_m: float, keys: frozenset) -> _Hypothesis:
+    @property
+    def direction(self) -> int:
+        return int(self.aux[L.A_DIR])
+
+    def copy_to(self, line: TrackArrays, s_m: float, keys: frozenset, flip: bool = False) -> _Hypothesis:
+        """A copy on ``line`` at ``s_m``; ``flip`` when arc length runs the other way there (s and v
+        change sign, and so do their covariance rows/columns)."""
         h = _Hypothesis(line, self.x.copy(), self.P.copy(), self.aux.copy(), self.cnt.copy(), keys)
         h.x[L.S] = s_m
+        if flip:
+            h.x[L.V] = -h.x[L.V]
+            h.aux[L.A_DIR] = -h.aux[L.A_DIR]
+            for i in (L.S, L.V):
+                h.P[i, :] = -h.P[i, :]
+                h.P[:, i] = -h.P[:, i]
+        return h
+
+    def mirrored(self) -> _Hypothesis:
+        """Same place, opposite sense of travel (the train may reverse while standing)."""
+        h = _Hypothesis(self.line, self.x.copy(), self.P.copy(), self.aux.copy(), self.cnt.copy(),
+                        self.spawned)
+        h.x[L.V] = -h.x[L.V]
+        h.aux[L.A_DIR] = -h.aux[L.A_DIR]
+        h.P[L.V, :] = -h.P[L.V, :]
+        h.P[:, L.V] = -h.P[:, L.V]
         return h
 
 
@@ -116,7 +139,7 @@ class TrackFilter:
                            np.zeros(2), np.zeros(2))
         h = _Hypothesis(line)
         a = (h.x, h.P, h.aux, h.cnt, self._cfg)
-        K.step_init(*a, line.s_m, line.grade, 0.0, 1.0, 1.0)
+        K.step_init(*a, line.s_m, line.grade, 0.0, 1.0, 1.0, 1.0)
         K.step_imu(*a, line.s_m, line.grade, line.curvature_inv_m, 0.01, 0.0, 0.0, -9.8, 0.0, 0.0, 0.0)
         K.step_odo(*a, line.s_m, line.grade, 0.05, 1.0, 0.05)
         K.step_gps(*a, line.s_m, line.east_m, line.north_m, line.grade, 1.0, 1.0, 0.0, 1.5, 1)
@@ -145,6 +168,7 @@ class TrackFilter:
                 confidence=self._config.confidence, hypotheses=0,
             )
         h = self._hyps[self._reported]
+        d = h.direction
         t = float(h.aux[L.A_T_STATE])
         t_eval = t if at_s is None or not math.isfinite(at_s) else max(t, float(at_s))
         code, bits, sigma = K.status_of(h.x, h.P, h.aux, self._cfg, t_eval)
@@ -154,7 +178,7 @@ class TrackFilter:
         return Estimate(
             epoch_s=t,
             arc_length_m=s,
-            speed_mps=float(h.x[L.V]),
+            speed_mps=float(d * h.x[L.V]),
             sigma_s_m=float(sigma),
             interval_low_m=s - self._z * sigma,
             interval_high_m=s + self._z * sigma,
@@ -166,7 +190,13 @@ class TrackFilter:
             sigma_v_mps=math.sqrt(pv) if pv > 0 else 0.0,
             confidence=self._config.confidence,
             hypotheses=len(self._hyps),
+            direction=d if not self._direction_ambiguous() else 0,
         )
+
+    def _direction_ambiguous(self) -> bool:
+        h = self._hyps[self._reported]
+        return any(g.line.line_id == h.line.line_id and g.direction != h.direction
+                   and abs(g.x[L.S] - h.x[L.S]) < 1.0 for g in self._hyps)
 
     def counters(self) -> dict[str, int]:
         """Per-sensor accepted/gated/late/invalid/timed-out counts and detections (reported hypothesis)."""
@@ -185,7 +215,8 @@ class TrackFilter:
             out["last_nis_gps"] = float(h.aux[L.A_LAST_NIS_GPS])
             out["last_nis_odo"] = float(h.aux[L.A_LAST_NIS_ODO])
             out["hypotheses"] = [
-                {"line_id": g.line.line_id, "s_m": float(g.x[L.S]), "loglik": float(g.aux[L.A_LOGLIK])}
+                {"line_id": g.line.line_id, "direction": g.direction, "s_m": float(g.x[L.S]),
+                 "loglik": float(g.aux[L.A_LOGLIK])}
                 for g in self._hyps
             ]
         return out
@@ -202,20 +233,29 @@ class TrackFilter:
         try:
             line = self._line_arrays(m.line_id)
         except self._track_errors:
-            self._count_all(L.C_NOT_INIT, 0)
             return Update("init", m.t_s, Outcome.INVALID)
-        if self._hyps:
-            base = self._hyps[self._reported]
-            h = _Hypothesis(line, base.x.copy(), base.P.copy(), base.aux.copy(), base.cnt.copy())
-        else:
-            h = _Hypothesis(line)
-        code = K.step_init(h.x, h.P, h.aux, h.cnt, self._cfg, line.s_m, line.grade,
-                           float(m.t_s), float(m.arc_length_m), float(m.speed_mps))
+        try:
+            t, s, v = float(m.t_s), float(m.arc_length_m), float(m.speed_mps)
+            directions = (1.0, -1.0) if m.direction is None else (float(m.direction),)
+        except (TypeError, ValueError):
+            return Update("init", math.nan, Outcome.INVALID)
+        new: list[_Hypothesis] = []
+        code = K.O_INVALID
+        for d in directions:
+            if self._hyps:
+                base = self._hyps[self._reported]
+                h = _Hypothesis(line, base.x.copy(), base.P.copy(), base.aux.copy(), base.cnt.copy())
+            else:
+                h = _Hypothesis(line)
+            code = K.step_init(h.x, h.P, h.aux, h.cnt, self._cfg, line.s_m, line.grade, t, s, v, d)
+            if code != K.O_INITIALISED:
+                break
+            new.append(h)
         if code == K.O_INITIALISED:
-            self._hyps = [h]
+            self._hyps = new
             self._reported = 0
             self._spawn_branches()
-        return Update("init", m.t_s, Outcome(code))
+        return Update("init", t, Outcome(code))
 
     def _process_imu(self, m: ImuMeas) -> Update:
         try:
@@ -247,7 +287,9 @@ class TrackFilter:
             if i == self._reported:
                 code = c
         nis = float(self._hyps[self._reported].aux[L.A_LAST_NIS_ODO])
-        if len(self._junction_map()) and code == K.O_ACCEPTED:
+        if self._hyps[self._reported].aux[L.A_STILL] != 0.0 and self._config.reversal_hypotheses:
+            self._spawn_reversals()
+        if self._junction_map() and code == K.O_ACCEPTED:
             self._spawn_branches()
         return Update("odo", t, Outcome(code), nis)
 
@@ -268,13 +310,20 @@ class TrackFilter:
             east, north = self._track.to_local(lat, lon)
             east, north = float(east), float(north)
         code = K.O_INVALID
+        accepted_by_any = False
         for i, h in enumerate(self._hyps):
             c = K.step_gps(h.x, h.P, h.aux, h.cnt, self._cfg, h.line.s_m, h.line.east_m, h.line.north_m,
                            h.line.grade, t, east, north, sigma_h, fq)
+            accepted_by_any |= c == K.O_ACCEPTED
             if i == self._reported:
                 code = c
         nis = float(self._hyps[self._reported].aux[L.A_LAST_NIS_GPS])
-        if len(self._hyps) > 1:
+        if len(self._hyps) > 1 and accepted_by_any:
+            # hypothesis score: robust GNSS log-likelihood -NIS/2 (capped), only from fixes that at least
+            # one hypothesis accepted (a fix every hypothesis rejects is a GNSS fault, not evidence)
+            cap = self._config.loglik_nis_cap
+            for h in self._hyps:
+                h.aux[L.A_LOGLIK] -= 0.5 * min(float(h.aux[L.A_LAST_NIS_GPS]), cap)
             self._prune()
         if self._junction_map():
             self._spawn_branches()
@@ -319,6 +368,20 @@ class TrackFilter:
             self._junctions = jmap
         return self._junctions
 
+    def _spawn_reversals(self) -> None:
+        """At standstill the train may change its sense of travel: keep the mirrored hypothesis too."""
+        new = []
+        for h in self._hyps:
+            if h.aux[L.A_STILL] == 0.0:
+                continue
+            if any(g.line.line_id == h.line.line_id and g.direction != h.direction
+                   and abs(g.x[L.S] - h.x[L.S]) < 1.0 for g in self._hyps + new):
+                continue
+            new.append(h.mirrored())
+        if new:
+            self._hyps.extend(new)
+            self._prune()
+
     def _spawn_branches(self) -> None:
         """Add a hypothesis on every line that branches off within the look-ahead window."""
         jmap = self._junction_map()
@@ -342,9 +405,10 @@ class TrackFilter:
                 # direction of the other line relative to this one at the junction
                 _, _, de_a, dn_a = K.geom_at(h.line.s_m, h.line.east_m, h.line.north_m, s_here)
                 _, _, de_b, dn_b = K.geom_at(other_line.s_m, other_line.east_m, other_line.north_m, s_other)
-                if de_a * de_b + dn_a * dn_b <= 0.0:
-                    continue  # the branch runs the other way on its line: not supported (docs/filter.md)
-                new.append(h.copy_to(other_line, s_other + (s - s_here), h.spawned))
+                if de_a * de_b + dn_a * dn_b >= 0.0:
+                    new.append(h.copy_to(other_line, s_other + (s - s_here), h.spawned))
+                else:  # arc length of the other line runs the other way at the junction
+                    new.append(h.copy_to(other_line, s_other - (s - s_here), h.spawned, flip=True))
         if new:
             self._hyps.extend(new)
             self._prune()
@@ -363,7 +427,8 @@ class TrackFilter:
             if h.x[L.S] > h.line.length_m + margin or h.x[L.S] < -margin:
                 if len(order) > 1:
                     continue  # ran off the end of its line while others remain
-            if any(g.line.line_id == h.line.line_id and abs(g.x[L.S] - h.x[L.S]) < 1.0 for g in keep):
+            if any(g.line.line_id == h.line.line_id and g.direction == h.direction
+                   and abs(g.x[L.S] - h.x[L.S]) < 1.0 for g in keep):
                 continue
             keep.append(h)
         if not keep:

@@ -22,6 +22,7 @@ from numba import njit
 from sfa.layout import (
     A_CUSUM_N,
     A_CUSUM_P,
+    A_DIR,
     A_FX,
     A_FX_MEAN,
     A_FX_VAR,
@@ -96,7 +97,6 @@ from sfa.layout import (
     K_GM_TAU,
     K_GPS_HOLDOFF_S,
     K_GPS_LATE_MAX,
-    K_GPS_MAX_LOGLIK_NIS,
     K_GPS_NOMINAL_SIGMA_H,
     K_GPS_TIMEOUT,
     K_GPS_WHITE,
@@ -274,8 +274,9 @@ def _predict_step(x, P, aux, cfg, ts, tg, h, imu_ok):
     g = cfg[K_GRAVITY]
     grade = interp_at(ts, tg, x[S])
     sin_th = grade / math.sqrt(1.0 + grade * grade)  # grade = tan(theta)
+    d = aux[A_DIR]
     if imu_ok:
-        a = aux[A_FX] - x[BA] - g * sin_th  # dv/dt = f_x - b_a - g sin(theta)
+        a = d * (aux[A_FX] - x[BA]) - g * sin_th  # dv/dt = d (f_x - b_a) - g sin(theta)
         q = cfg[K_Q_ACC]
     else:
         a = 0.0  # no IMU: constant-velocity model with a wider acceleration noise
@@ -291,8 +292,8 @@ def _predict_step(x, P, aux, cfg, ts, tg, h, imu_ok):
     F = np.eye(NX)
     F[S, V] = h
     if imu_ok:
-        F[S, BA] = -0.5 * h * h
-        F[V, BA] = -h
+        F[S, BA] = -0.5 * d * h * h
+        F[V, BA] = -d * h
     F[GE, GE] = phi
     F[GN, GN] = phi
     # P = F P F' + Q
@@ -437,13 +438,15 @@ def status_of(x, P, aux, cfg, t):
 
 # ============================================================== initialisation (GROUND TRUTH)
 @njit(cache=True)
-def step_init(x, P, aux, cnt, cfg, ts, tg, t, s, v):
-    """(Re)initialise arc length and speed at time t.
+def step_init(x, P, aux, cnt, cfg, ts, tg, t, s, v, direction):
+    """(Re)initialise arc length and speed at time t. v is the speed in the train's forward direction
+    (GROUND TRUTH's vx), direction +1 when forward is increasing arc length, -1 otherwise.
 
     First initialisation: every state and covariance from the configuration. Re-initialisation keeps
     the learned sensor error states (biases, scale factor, GNSS error) and their covariance, and
     resets only the rows/columns of s and v."""
-    if not (math.isfinite(t) and math.isfinite(s) and math.isfinite(v)) or abs(v) > 1000.0:
+    if not (math.isfinite(t) and math.isfinite(s) and math.isfinite(v)) or abs(v) > 1000.0 \
+            or abs(direction) != 1.0:
         return O_INVALID
     if aux[A_INIT] == 0.0:
         x[:] = 0.0
@@ -459,12 +462,13 @@ def step_init(x, P, aux, cnt, cfg, ts, tg, t, s, v):
         P[V, i] = 0.0
         P[i, V] = 0.0
     x[S] = s
-    x[V] = v
+    x[V] = direction * v  # speed along increasing arc length
+    aux[A_DIR] = direction
     P[S, S] = cfg[K_INIT_SIGMA_S] ** 2
     P[V, V] = cfg[K_INIT_SIGMA_V] ** 2
     grade = interp_at(ts, tg, s)
-    # until the first IMU sample the held force keeps the speed constant: f_x = b_a + g sin(theta)
-    aux[A_FX] = x[BA] + cfg[K_GRAVITY] * grade / math.sqrt(1.0 + grade * grade)
+    # until the first IMU sample the held force keeps the speed constant: f_x = b_a + d g sin(theta)
+    aux[A_FX] = x[BA] + direction * cfg[K_GRAVITY] * grade / math.sqrt(1.0 + grade * grade)
     aux[A_T_STATE] = t
     aux[A_T_IMU] = t
     aux[A_T_ODO] = t
@@ -545,7 +549,7 @@ def step_imu(x, P, aux, cnt, cfg, ts, tg, tk, t, fx, fy, fz, wx, wy, wz):
 # ============================================================== odometer (+ slip detection, ZUPT)
 @njit(cache=True)
 def step_odo(x, P, aux, cnt, cfg, ts, tg, t, speed, sigma):
-    """Odometer speed z = v (1 + k_o) + noise with the sample's own sigma, slip/slide detection
+    """Odometer speed z = d v (1 + k_o) + noise with the sample's own sigma, slip/slide detection
     against the IMU-propagated speed, and a zero-velocity update at detected standstill."""
     if not (math.isfinite(t) and math.isfinite(speed) and math.isfinite(sigma)) or sigma <= 0.0 \
             or abs(speed) > 300.0:
@@ -563,10 +567,11 @@ def step_odo(x, P, aux, cnt, cfg, ts, tg, t, speed, sigma):
     H = np.zeros((2, NX))
     R = np.zeros((2, 2))
     y = np.zeros(2)
-    H[0, V] = 1.0 + x[KO]  # dh/dv
-    H[0, KO] = x[V]  # dh/dk_o
+    d = aux[A_DIR]
+    H[0, V] = d * (1.0 + x[KO])  # dh/dv
+    H[0, KO] = d * x[V]  # dh/dk_o
     R[0, 0] = sig * sig + cfg[K_ODO_QUANT] ** 2 / 12.0  # sample sigma^2 + quantisation
-    y[0] = speed - x[V] * (1.0 + x[KO])  # y = z - v (1 + k_o)
+    y[0] = speed - d * x[V] * (1.0 + x[KO])  # y = z - d v (1 + k_o)
     PHt, Sm, Si, nis, logdet = innovation(P, H, R, y, 1)
     aux[A_LAST_NIS_ODO] = nis
     imu_timely = (t - aux[A_T_IMU]) <= cfg[K_IMU_TIMEOUT]
@@ -704,8 +709,6 @@ def step_gps(x, P, aux, cnt, cfg, ts, te, tn, tg, t, east, north, sigma_h, fix_q
         R[1, 0] += qa * ue * un
     PHt, Sm, Si, nis, logdet = innovation(P, H, R, y, 2)
     aux[A_LAST_NIS_GPS] = nis
-    # robust log-likelihood for competing line hypotheses
-    aux[A_LOGLIK] += -0.5 * (min(nis, cfg[K_GPS_MAX_LOGLIK_NIS]) + logdet + 2.0 * LOG_2PI)
     along = y[0] * ue + y[1] * un  # along-track component of the innovation [m]
     if t < aux[A_GPS_HOLD]:
         cnt[C_GPS_HELD] += 1

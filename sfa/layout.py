@@ -57,7 +57,8 @@ A_GPS_E = 28  #: last GNSS fix, local east [m] (for the re-acquisition consisten
 A_GPS_N = 29  #: last GNSS fix, local north [m]
 A_REJ_DS = 30  #: along-track residual of the first fix of the current rejection run [m]
 A_REJ_MAXDEV = 31  #: largest change of that residual within the run [m]
-NAUX = 32
+A_DIR = 32  #: sense of travel: +1 the train's forward is increasing arc length, -1 decreasing
+NAUX = 33
 
 # ---------------------------------------------------------------- counters cnt (int64[NCNT])
 C_IMU_OK = 0

@@ -45,8 +45,10 @@ class InitMeas:
 
     t_s: float  #: time [s]
     arc_length_m: float  #: arc length on the line [m]
-    speed_mps: float  #: speed along the track [m/s]
+    speed_mps: float  #: speed in the train's forward direction (GROUND TRUTH's body vx) [m/s]
     line_id: int | None = None  #: line of the database; None: the database's default line
+    direction: int | None = None  #: +1 forward is increasing arc length, -1 decreasing; None: unknown
+    #: (the filter then keeps both senses as hypotheses until GNSS tells them apart)
 
 
 Measurement = ImuMeas | OdoMeas | GpsMeas | InitMeas
