@@ -1,0 +1,269 @@
+"""The fault proxy's core (sans-I/O): a datagram in, the datagrams to emit and when, every action counted.
+
+``FaultCore.forward(data, sender, now)`` takes one datagram from a client (``sender`` is any hashable
+key: the client's address live, the source port in replay) and returns ``[(send_time, datagram,
+sender), ...]``. ``reply`` does the same for the other direction (upstream -> client), where only
+blackouts apply unless the profile sets ``impair_replies``. Injections (forged datagrams, garbage)
+and the release of held datagrams are due at ``next_timer()``; ``handle_timer(now)`` returns them.
+Nothing reads a clock, opens a socket or sleeps; the generator is a seeded ``numpy.random.Generator``,
+so the same datagrams at the same times give the same output, every time.
+
+Order of decisions for a forwarded datagram: blackout, Gilbert-Elliott burst loss, Bernoulli loss,
+bit flips, truncation, delay + jitter (kept in order per sender), reordering (held until the next
+datagram of the same sender has gone out, or ``reorder_max_s``), duplication, replay of an earlier
+datagram of the same sender. Emitted datagrams of one sender never overtake each other except where
+a reorder or a replay was counted.
+"""
+
+from __future__ import annotations
+
+import math
+from collections import Counter, OrderedDict, deque
+from collections.abc import Hashable
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from tools.faults.config import Impairments
+from tools.faults.forge import flip_bits, forge_invalid, forge_valid, garbage, truncate
+
+FORGE_SENDER = ("forge", 0)  #: sender key of injected datagrams that do not pose as a real sender
+_EPS_S = 1e-6  #: spacing of datagrams emitted together, keeping their order on an ordered link [s]
+
+Emit = tuple[float, bytes, Hashable]
+
+#: every counter the core keeps (all present in :meth:`FaultCore.stats`, zero when unused)
+COUNTERS = (
+    "received", "forwarded", "dropped_loss", "dropped_burst", "dropped_blackout", "bitflipped",
+    "truncated", "duplicated", "reordered", "reorder_expired", "replayed", "forged_valid",
+    "forged_invalid", "garbage", "replies_received", "replies_forwarded", "replies_dropped_blackout",
+    "replies_dropped_loss", "replies_duplicated", "replies_bitflipped", "replies_truncated",
+    "senders_evicted", "emitted",
+)
+
+
+@dataclass
+class _Sender:
+    last_send: float = -math.inf  #: send time of the newest datagram emitted for this sender
+    held: tuple[bytes, float] | None = None  #: (datagram, deadline) held for a reorder
+    history: deque = field(default_factory=deque)  #: earlier datagrams, for replays
+
+
+class FaultCore:
+    """One direction's impairments (plus blackouts on the replies), deterministic for a seed."""
+
+    def __init__(self, impairments: Impairments, seed: int, start: float | None = None) -> None:
+        self.imp = impairments.validate()
+        self.seed = seed
+        self._rng = np.random.default_rng(seed)
+        self._inj_rng = np.random.default_rng([seed, 1])  # injections never shift the forwarding draws
+        self.start = start
+        self.counters: Counter[str] = Counter()
+        self._senders: OrderedDict[Hashable, _Sender] = OrderedDict()
+        self._bad = False  # Gilbert-Elliott state
+        self._forged = 0
+        self._garbage = 0
+        self._next_forge: float | None = None
+        self._next_garbage: float | None = None
+        if start is not None:
+            self._arm(start)
+
+    # ------------------------------------------------------------------ helpers
+    def _arm(self, start: float) -> None:
+        self.start = start
+        imp = self.imp
+        t0 = start + imp.inject_start_s
+        self._next_forge = t0 if imp.forge_rate_hz > 0 else None
+        self._next_garbage = t0 if imp.garbage_rate_hz > 0 else None
+
+    def _started(self, now: float) -> None:
+        if self.start is None:
+            self._arm(now)
+
+    def in_blackout(self, now: float) -> bool:
+        """Whether ``now`` falls in a blackout window."""
+        if self.start is None:
+            return False
+        t = now - self.start
+        return any(a <= t < a + d for a, d in self.imp.blackouts)
+
+    def _sender(self, key: Hashable) -> _Sender:
+        st = self._senders.get(key)
+        if st is None:
+            st = _Sender(history=deque(maxlen=self.imp.replay_window))
+            self._senders[key] = st
+            if len(self._senders) > self.imp.max_senders:
+                self._senders.popitem(last=False)
+                self.counters["senders_evicted"] += 1
+        else:
+            self._senders.move_to_end(key)
+        return st
+
+    def _emit(self, out: list[Emit], t: float, data: bytes, sender: Hashable, st: _Sender | None) -> float:
+        if st is not None:
+            t = max(t, st.last_send + _EPS_S)
+            st.last_send = t
+        out.append((t, data, sender))
+        self.counters["emitted"] += 1
+        return t
+
+    # ------------------------------------------------------------------ client -> upstream
+    def forward(self, data: bytes, sender: Hashable, now: float) -> list[Emit]:
+        """One datagram from a client at ``now``; returns what to send upstream and when."""
+        self._started(now)
+        imp, rng, c = self.imp, self._rng, self.counters
+        c["received"] += 1
+        out: list[Emit] = []
+        st = self._sender(sender)
+        if st.held is not None and st.held[1] <= now:  # a reorder hold that expired unnoticed
+            out.extend(self._release_expired(sender, st, st.held[1]))
+        if self.in_blackout(now):
+            c["dropped_blackout"] += 1
+            return out
+        if imp.ge_p_good_bad > 0.0:
+            self._bad = rng.random() < (1.0 - imp.ge_p_bad_good if self._bad else imp.ge_p_good_bad)
+            if rng.random() < (imp.ge_loss_bad if self._bad else imp.ge_loss_good):
+                c["dropped_burst"] += 1
+                return out
+        if imp.loss > 0.0 and rng.random() < imp.loss:
+            c["dropped_loss"] += 1
+            return out
+        original = bytes(data)
+        payload = original
+        if imp.bitflip > 0.0 and rng.random() < imp.bitflip:
+            payload = flip_bits(rng, payload, imp.bitflip_bits)
+            c["bitflipped"] += 1
+        if imp.truncate > 0.0 and rng.random() < imp.truncate:
+            payload = truncate(rng, payload)
+            c["truncated"] += 1
+        t = now + imp.delay_s + (rng.uniform(0.0, imp.jitter_s) if imp.jitter_s > 0.0 else 0.0)
+        if st.held is None and imp.reorder > 0.0 and rng.random() < imp.reorder:
+            st.held = (payload, now + imp.reorder_max_s)
+        else:
+            c["forwarded"] += 1
+            t = self._emit(out, t, payload, sender, st)
+            if st.held is not None:  # the held datagram goes out right behind this one: a reorder
+                held, _ = st.held
+                st.held = None
+                c["forwarded"] += 1
+                c["reordered"] += 1
+                t = self._emit(out, t, held, sender, st)
+            if imp.duplicate > 0.0 and rng.random() < imp.duplicate:
+                c["duplicated"] += 1
+                t = self._emit(out, t + imp.duplicate_gap_s, payload, sender, st)
+        if imp.replay > 0.0 and st.history and rng.random() < imp.replay:
+            old = st.history[int(rng.integers(0, len(st.history)))]
+            c["replayed"] += 1
+            self._emit(out, t, old, sender, st)
+        if imp.replay > 0.0:
+            st.history.append(original)
+        return out
+
+    def _release_expired(self, sender: Hashable, st: _Sender, at: float) -> list[Emit]:
+        assert st.held is not None
+        held, _ = st.held
+        st.held = None
+        self.counters["forwarded"] += 1
+        self.counters["reorder_expired"] += 1
+        out: list[Emit] = []
+        self._emit(out, at, held, sender, st)
+        return out
+
+    # ------------------------------------------------------------------ upstream -> client
+    def reply(self, data: bytes, sender: Hashable, now: float) -> list[Emit]:
+        """A datagram from upstream for the client ``sender``: blackouts, and impairments if configured."""
+        self._started(now)
+        imp, rng, c = self.imp, self._rng, self.counters
+        c["replies_received"] += 1
+        if self.in_blackout(now):
+            c["replies_dropped_blackout"] += 1
+            return []
+        payload = bytes(data)
+        out: list[Emit] = []
+        if imp.impair_replies:
+            if imp.loss > 0.0 and rng.random() < imp.loss:
+                c["replies_dropped_loss"] += 1
+                return []
+            if imp.bitflip > 0.0 and rng.random() < imp.bitflip:
+                payload = flip_bits(rng, payload, imp.bitflip_bits)
+                c["replies_bitflipped"] += 1
+            if imp.truncate > 0.0 and rng.random() < imp.truncate:
+                payload = truncate(rng, payload)
+                c["replies_truncated"] += 1
+        t = now + imp.delay_s
+        out.append((t, payload, sender))
+        c["replies_forwarded"] += 1
+        c["emitted"] += 1
+        if imp.impair_replies and imp.duplicate > 0.0 and rng.random() < imp.duplicate:
+            c["replies_duplicated"] += 1
+            c["emitted"] += 1
+            out.append((t + imp.duplicate_gap_s, payload, sender))
+        return out
+
+    # ------------------------------------------------------------------ timers
+    def next_timer(self) -> float | None:
+        """When :meth:`handle_timer` has something to do (None: nothing scheduled)."""
+        times = [st.held[1] for st in self._senders.values() if st.held is not None]
+        times += [t for t in (self._next_forge, self._next_garbage) if t is not None]
+        return min(times) if times else None
+
+    def handle_timer(self, now: float) -> list[Emit]:
+        """Expired reorder holds and the injections due at ``now`` (at most ``max_batch`` of them)."""
+        self._started(now)
+        out: list[Emit] = []
+        for key, st in list(self._senders.items()):
+            if st.held is not None and st.held[1] <= now:
+                out.extend(self._release_expired(key, st, st.held[1]))
+        imp = self.imp
+        assert self.start is not None
+        end = self.start + imp.inject_end_s
+        budget = imp.max_batch
+        while self._next_forge is not None and self._next_forge <= now and budget > 0:
+            t = self._next_forge
+            if t >= end or (imp.forge_count and self._forged >= imp.forge_count):
+                self._next_forge = None
+                break
+            budget -= 1
+            self._forged += 1
+            self._next_forge = t + 1.0 / imp.forge_rate_hz
+            if self.in_blackout(t):
+                continue
+            rng = self._inj_rng
+            if rng.random() < imp.forge_valid_fraction:
+                data, kind = forge_valid(rng), "forged_valid"
+            else:
+                data, kind = forge_invalid(rng), "forged_invalid"
+            self.counters[kind] += 1
+            out.append((t, data, self._forge_sender()))
+            self.counters["emitted"] += 1
+        while self._next_garbage is not None and self._next_garbage <= now and budget > 0:
+            t = self._next_garbage
+            if t >= end:
+                self._next_garbage = None
+                break
+            budget -= 1
+            self._garbage += 1
+            self._next_garbage = self.start + imp.inject_start_s + self._garbage / imp.garbage_rate_hz
+            if self.in_blackout(t):
+                continue
+            self.counters["garbage"] += 1
+            self.counters["emitted"] += 1
+            out.append((t, garbage(self._inj_rng, imp.garbage_max_bytes), FORGE_SENDER))
+        return out
+
+    def _forge_sender(self) -> Hashable:
+        if self.imp.forge_on_stream and self._senders:
+            keys = list(self._senders)
+            return keys[int(self._inj_rng.integers(0, len(keys)))]
+        return FORGE_SENDER
+
+    # ------------------------------------------------------------------ counters
+    def stats(self) -> dict[str, int]:
+        """A snapshot of every counter (all of :data:`COUNTERS`, zeros included) and the ``held`` gauge.
+
+        Every received datagram is dropped (``dropped_*``), forwarded, or ``held`` now, so
+        ``received == dropped_loss + dropped_burst + dropped_blackout + forwarded + held``.
+        """
+        out = {name: int(self.counters.get(name, 0)) for name in COUNTERS}
+        out["held"] = sum(1 for st in self._senders.values() if st.held is not None)
+        return out

@@ -1,0 +1,88 @@
+"""Datagrams the proxy injects: forged INPUT datagrams (valid-looking or subtly invalid) and garbage.
+
+Forged datagrams are built with :func:`listener.codec.encode_input` from random field values drawn
+from the caller's seeded generator: a *valid* forgery is in range and well formed (only an integrity
+check can tell it from a real one); an *invalid* one breaks exactly one rule the codec checks (a
+value out of range, a NaN, a form no table row allows, a wrong length). Garbage is random bytes.
+"""
+
+from __future__ import annotations
+
+import struct
+
+import numpy as np
+
+from listener.codec import GpsFix, GroundTruth, ImuSample, OdometerSample, Strobe, encode_input
+
+_INVALID_KINDS = ("range", "non_finite", "form", "length", "type")
+
+
+def forge_valid(rng: np.random.Generator, epoch_s: float | None = None) -> bytes:
+    """A well-formed, in-range INPUT datagram with random content (a spoofed sensor sample)."""
+    seq = int(rng.integers(0, 65536))
+    epoch = None if epoch_s is None else float(epoch_s + rng.uniform(-5.0, 5.0))
+    kind = int(rng.integers(0, 5))
+    if kind == 0:
+        f = rng.uniform(-20.0, 20.0, 3)
+        w = rng.uniform(-1.0, 1.0, 3)
+        return encode_input(ImuSample(seq, *map(float, f), *map(float, w), epoch))
+    if kind == 1:
+        speed, sigma = float(rng.uniform(-40.0, 40.0)), float(rng.uniform(0.01, 2.0))
+        return encode_input(OdometerSample(seq, speed, sigma, epoch))
+    if kind == 2:
+        return encode_input(GpsFix(seq, float(rng.uniform(-89.0, 89.0)), float(rng.uniform(-179.0, 179.0)),
+                                   float(rng.uniform(0.0, 500.0)), 1, int(rng.integers(4, 20)),
+                                   float(rng.uniform(0.5, 10.0)), epoch))
+    if kind == 3:
+        return encode_input(GroundTruth(seq, float(rng.uniform(0.0, 30.0)), 0.0, 0.0,
+                                        float(rng.uniform(0.0, 20000.0)), None, epoch))
+    return encode_input(Strobe(seq, float(rng.uniform(0.0, 1e9) if epoch is None else epoch)))
+
+
+def forge_invalid(rng: np.random.Generator) -> bytes:
+    """An INPUT datagram that breaks exactly one codec rule (so a correct listener rejects it)."""
+    seq = int(rng.integers(0, 65536))
+    how = _INVALID_KINDS[int(rng.integers(0, len(_INVALID_KINDS)))]
+    if how == "range":
+        return encode_input(OdometerSample(seq, float(rng.uniform(151.0, 1e6)), 0.1), validate=False)
+    if how == "non_finite":
+        bad = float(rng.choice([np.nan, np.inf, -np.inf]))
+        return encode_input(ImuSample(seq, bad, 0.0, -9.81, 0.0, 0.0, 0.0), validate=False)
+    if how == "form":  # an ODOMETER header announcing 5 doubles: no table row allows it
+        return struct.pack("<BHBB5d", 2, seq, 0, 5, *rng.uniform(0.0, 1.0, 5))
+    if how == "length":  # a valid header, one byte missing
+        return encode_input(OdometerSample(seq, 1.0, 0.1))[:-1]
+    sensor = int(rng.choice([0, 4, 5, 6, 7, 11, 255]))  # "type": an unknown SENSOR_TYPE
+    return struct.pack("<BHBB2d", sensor, seq, 0, 2, 1.0, 0.1)
+
+
+def garbage(rng: np.random.Generator, max_bytes: int) -> bytes:
+    """Random bytes, 0..max_bytes long, that never form a valid INPUT datagram.
+
+    The first byte is forced to an unknown SENSOR_TYPE (valid types are 1, 2, 3, 8, 9, 10), so the
+    count of garbage the proxy sent equals what a correct listener must reject.
+    """
+    n = int(rng.integers(0, max_bytes + 1))
+    data = bytearray(rng.integers(0, 256, n, dtype=np.uint8).tobytes())
+    if n:
+        data[0] = int(rng.choice([0, 4, 5, 6, 7, 11, 12, 128, 255]))
+    return bytes(data)
+
+
+def flip_bits(rng: np.random.Generator, data: bytes, n_bits: int) -> bytes:
+    """``data`` with ``n_bits`` distinct random bits inverted (all of them if it has fewer)."""
+    total = 8 * len(data)
+    if total == 0:
+        return data
+    picks = rng.choice(total, size=min(n_bits, total), replace=False)
+    out = bytearray(data)
+    for bit in picks:
+        out[int(bit) // 8] ^= 1 << (int(bit) % 8)
+    return bytes(out)
+
+
+def truncate(rng: np.random.Generator, data: bytes) -> bytes:
+    """``data`` cut to a random length in 0..len-1 (an empty datagram stays empty)."""
+    if not data:
+        return data
+    return data[: int(rng.integers(0, len(data)))]
