@@ -23,6 +23,7 @@ from __future__ import annotations
 import heapq
 import math
 from collections import Counter, deque
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
@@ -102,6 +103,11 @@ class Pipeline:
         self.rejected: Counter[str] = Counter()
         self.by_type: Counter[str] = Counter()
         self.last_estimate = None
+        #: optional observers (replay, benchmarks): called with each filter Update, each dated
+        #: measurement before the filter sees it, and (seq, Estimate) for each new output
+        self.on_update: Callable[[Any], None] | None = None
+        self.on_measurement: Callable[[Any], None] | None = None
+        self.on_output: Callable[[int, Any], None] | None = None
 
     # ------------------------------------------------------------------ inputs
     def receive(self, data: bytes, addr: Any, now: float) -> list[bytes]:
@@ -214,7 +220,12 @@ class Pipeline:
         filt = self.filter
         while heap and (heap[0][0] <= horizon or len(heap) > self.cfg.merge.max_pending):
             t, _, msg = heapq.heappop(heap)
-            update = filt.process(to_measurement(msg, t))
+            meas = to_measurement(msg, t)
+            if self.on_measurement is not None:
+                self.on_measurement(meas)
+            update = filt.process(meas)
+            if self.on_update is not None:
+                self.on_update(update)
             self.counters["processed"] += 1
             self.counters[f"outcome_{update.kind}_{_outcome_name(update.outcome)}"] += 1
             out.extend(self._maybe_output(now))
@@ -226,8 +237,10 @@ class Pipeline:
             return []
         if est.epoch_s < self._last_output_epoch:
             return []
-        if est.epoch_s == self._last_output_epoch and self.last_estimate is not None and (
-            est.arc_length_m == self.last_estimate.arc_length_m
+        if (
+            est.epoch_s == self._last_output_epoch
+            and self.last_estimate is not None
+            and (est.arc_length_m == self.last_estimate.arc_length_m)
         ):
             return []
         self._last_output_epoch = est.epoch_s
@@ -235,6 +248,8 @@ class Pipeline:
         return self.link.send_estimate(est, now)
 
     def _encode_estimate(self, seq: int, est) -> bytes:
+        if self.on_output is not None:
+            self.on_output(seq, est)
         if self.cfg.link.extended:
             return encode_output_extended(
                 OutputExtended(
@@ -268,8 +283,17 @@ class Pipeline:
                 **{
                     k: getattr(seq.totals, k)
                     for k in (
-                        "received", "released", "in_order", "reordered", "duplicates", "lost", "late",
-                        "resyncs", "overflow", "probation_drops", "pending",
+                        "received",
+                        "released",
+                        "in_order",
+                        "reordered",
+                        "duplicates",
+                        "lost",
+                        "late",
+                        "resyncs",
+                        "overflow",
+                        "probation_drops",
+                        "pending",
                     )
                 },
             },
