@@ -1,4 +1,4 @@
-"""The driver and the truth trajectory: journey profile -> 100 Hz truth (time, arc length, speed, acceleration).
+"""The driver and the truth trajectory: journey profile -> truth (time, arc length, speed, acceleration).
 
 Integration scheme (what the sensor models and the tests rely on): time advances in fixed steps
 ``dt``; over step ``k`` (from ``t_k`` to ``t_k + dt``) the train's acceleration ``a_k`` is constant,
