@@ -362,3 +362,26 @@ def test_bad_scalar_arc_length_is_a_query_error(jena, bad):
     for query in (line.point_at, line.tangent_at, line.heading_at, line.curvature_at, line.grade_at):
         with pytest.raises(QueryError):
             query(bad)
+
+
+def test_duplicated_and_reversed_lines_tie_to_the_lowest_line_id(tmp_path):
+    lat, lon = straight(75.0, 500.0, 25.0, start_m=100.0)
+    lat2, lon2 = straight(160.0, 300.0, 30.0, start_m=100.0)
+    lines = [
+        LineGeometry("other", lat2, lon2),
+        LineGeometry("reversed", lat[::-1], lon[::-1]),
+        LineGeometry("forward", lat, lon),
+        LineGeometry("forward again", lat, lon),
+    ]
+    db = TrackDatabase.open(create_database(tmp_path / "dup.db", lines))
+    rng = np.random.default_rng(2)
+    fwd = db.line(3)
+    s = rng.uniform(60.0, fwd.length_m, 200)  # away from the shared start with "other"
+    e, n = fwd.point_at(s)
+    te, tn = fwd.tangent_at(s)
+    off = rng.uniform(-4.0, 4.0, s.size)
+    lat_q, lon_q = db.to_geodetic(e + off * tn, n - off * te)
+    res = db.locate_many(lat_q, lon_q)
+    assert np.all(res.line_id == 2)  # "reversed" has the lowest id among the three identical geometries
+    np.testing.assert_allclose(res.s_m, fwd.length_m - s, atol=1e-6)  # its own arc length, reversed
+    np.testing.assert_allclose(res.offset_m, -off, atol=1e-6)  # right of "forward" is left of "reversed"

@@ -3,7 +3,8 @@
 The tree finds, for each query point, the nearest segment(s); the foot point, arc length and signed
 lateral offset are then computed exactly with numpy. Ties (a point equally near several segments,
 e.g. on a trunk shared by several lines) go to the lowest line id, then the lowest arc length, so
-results are deterministic.
+results are deterministic. Segments that coincide (to 0.1 mm, in either direction) are indexed once,
+through the occurrence the tie rule would choose.
 """
 
 from __future__ import annotations
@@ -17,6 +18,8 @@ __all__ = ["NearestResult", "SegmentIndex", "project_onto_segments"]
 
 #: distances equal within this are ties [m]
 _TIE_M = 1e-6
+#: segments whose ends agree to this are indexed once, through their representative [m]
+_SAME_M = 1e-4
 
 
 @dataclass(frozen=True)
@@ -53,8 +56,30 @@ class SegmentIndex:
         self.y0 = np.ascontiguousarray(y0, dtype=np.float64)
         self.dx = np.ascontiguousarray(x1, dtype=np.float64) - self.x0
         self.dy = np.ascontiguousarray(y1, dtype=np.float64) - self.y0
+        # Identical segments (shared trunks: the same vertices in several lines, in either direction) are
+        # indexed once, through their representative: the occurrence with the lowest line id, then the
+        # lowest arc length, which is also the tie rule. Fewer, non-overlapping segments make the
+        # tree's nearest search several times faster on real networks.
+        x1a = self.x0 + self.dx
+        y1a = self.y0 + self.dy
+        swap = (self.x0 > x1a) | ((self.x0 == x1a) & (self.y0 > y1a))
+        key = np.column_stack(
+            (
+                np.where(swap, x1a, self.x0),
+                np.where(swap, y1a, self.y0),
+                np.where(swap, self.x0, x1a),
+                np.where(swap, self.y0, y1a),
+            )
+        )
+        order = np.lexsort((self.s0, self.line_id))  # candidates in tie-rule order
+        # segments equal to 0.1 mm are one geometry (transforms of the same vertex can differ by ~1e-12 m)
+        _, first = np.unique(np.round(key[order] / _SAME_M), axis=0, return_index=True)
+        self._rep = np.sort(order[first])  # representative segment of each distinct geometry
         coords = np.stack(
-            (np.column_stack((self.x0, self.y0)), np.column_stack((self.x0 + self.dx, self.y0 + self.dy))),
+            (
+                np.column_stack((self.x0[self._rep], self.y0[self._rep])),
+                np.column_stack((x1a[self._rep], y1a[self._rep])),
+            ),
             axis=1,
         )
         self._tree = shapely.STRtree(shapely.linestrings(coords))
@@ -79,7 +104,7 @@ class SegmentIndex:
         px = np.ascontiguousarray(east_m, dtype=np.float64)
         py = np.ascontiguousarray(north_m, dtype=np.float64)
         pairs = self._tree.query_nearest(shapely.points(px, py), all_matches=True)
-        q, seg = pairs[0], pairs[1]
+        q, seg = pairs[0], self._rep[pairs[1]]
         _, s, off, dist = project_onto_segments(
             px[q], py[q], self.x0[seg], self.y0[seg], self.dx[seg], self.dy[seg], self.s0[seg], self.ds[seg]
         )
