@@ -56,17 +56,21 @@ def build_legs(sc: Scenario, track) -> list[LegSchedule]:
         if scheduled_run is not None and scheduled_run <= 0:
             raise ScenarioError(f"arrival at {end.name} is not after the departure from {start.name}")
         pass_points = tuple((p.s_m, None if p.arrival_s is None else p.arrival_s - departure) for p in inner)
-        plan = plan_leg(
-            sc.train,
-            s_start_m=start.s_m,
-            s_end_m=end.s_m,
-            dx_m=PLAN_STEP_M,
-            limit_at=limit_at,
-            grade_at=track.grade_at,
-            curvature_at=track.curvature_at,
-            scheduled_run_s=scheduled_run,
-            pass_points=pass_points,
-        )
+
+        def planner(run_s, late_s=0.0, s0=start.s_m, s1=end.s_m, pp=pass_points):
+            return plan_leg(
+                sc.train,
+                s_start_m=s0,
+                s_end_m=s1,
+                dx_m=PLAN_STEP_M,
+                limit_at=limit_at,
+                grade_at=track.grade_at,
+                curvature_at=track.curvature_at,
+                scheduled_run_s=run_s,
+                pass_points=tuple((s, None if tp is None else max(tp - late_s, 1.0)) for s, tp in pp),
+            )
+
+        plan = planner(scheduled_run)
         legs.append(
             LegSchedule(
                 plan=plan,
@@ -77,6 +81,7 @@ def build_legs(sc: Scenario, track) -> list[LegSchedule]:
                 arrival_s=end.arrival_s,
                 pass_names=tuple(p.name or f"{p.s_m:.0f} m" for p in inner),
                 pass_scheduled_s=tuple(p.arrival_s for p in inner),
+                replan=planner,
             )
         )
     return legs

@@ -14,6 +14,7 @@ point the train dwells until ``max(actual arrival + dwell, scheduled departure)`
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -22,6 +23,9 @@ from . import dynamics
 from .errors import SimError
 from .planner import LegPlan
 from .trains import TrainSpec
+
+#: a departure this much later than scheduled makes the driver replan the leg to recover [s]
+REPLAN_DELAY_S = 0.5
 
 
 @dataclass(frozen=True)
@@ -50,6 +54,8 @@ class LegSchedule:
     arrival_s: float | None  #: scheduled arrival at the leg's last stop [s], None if not timetabled
     pass_names: tuple[str, ...] = ()  #: names of the passing points inside the leg
     pass_scheduled_s: tuple[float | None, ...] = ()  #: scheduled passing times [s]
+    #: plans the leg again for (running time [s], delay [s]) when the train departs late (None: keep the plan)
+    replan: Callable[[float, float], LegPlan] | None = None
 
 
 @dataclass
@@ -124,6 +130,10 @@ def drive(
         if not hold_until(depart_t, prev_dir):
             truncated = True
             break
+        late_s = k * dt_s - leg.departure_s
+        if leg.replan is not None and leg.arrival_s is not None and late_s > REPLAN_DELAY_S:
+            # departed late: plan to recover the delay (as far as the line and the train allow)
+            plan = leg.replan(max(leg.arrival_s - k * dt_s, 1.0), late_s)
         if plan.direction != prev_dir:
             events.append((k * dt_s, "reverse", f"cab change at {leg.from_name}"))
         prev_dir = plan.direction

@@ -4,10 +4,10 @@
 
 - ``"default"``: the bundled database, ``track_db.default_database_path()`` (the Jena tram network);
 - ``"synthetic"``: a :class:`~interface_modules.synthetic.SyntheticTrack` from ``[[track.segments]]``;
-- ``"gtfs:FILE"``: a GTFS ``shapes.txt`` extract shipped with the scenarios (``FILE`` relative to the
-  scenario's directory); the shape ``gtfs_shape_id`` is imported with the track_db importer into a
-  cache database (``$SFA_CACHE_DIR`` or ``~/.cache/sfa/tracks``) on first use, keyed by the file's
-  SHA-256, and reused afterwards;
+- ``"gtfs:DIR"``: a GTFS feed extract shipped with the scenarios (``DIR`` relative to the scenario's
+  directory); the shape ``gtfs_shape_id`` is imported with the track_db GTFS importer into a cache
+  database (``$SFA_CACHE_DIR`` or ``~/.cache/sfa/tracks``) on first use, keyed by the SHA-256 of the
+  feed files and the shape id, and reused afterwards (the build is atomic: written then renamed);
 - anything else: a path to a track database (relative to the scenario's directory).
 """
 
@@ -66,12 +66,16 @@ def open_line(sc: Scenario):
 
 
 def _gtfs_database(sc: Scenario, source: Path) -> Path:
-    if not source.is_file():
+    if not source.exists():
         raise ScenarioError(f"GTFS source {str(source)!r} not found")
     if not sc.track.gtfs_shape_id:
         raise ScenarioError("track.gtfs_shape_id is required for a gtfs: database")
-    digest = hashlib.sha256(source.read_bytes() + sc.track.gtfs_shape_id.encode()).hexdigest()[:16]
-    target = cache_dir() / f"{source.stem}-{digest}.db"
+    h = hashlib.sha256(sc.track.gtfs_shape_id.encode())
+    files = sorted(source.glob("*.txt")) if source.is_dir() else [source]
+    for f in files:
+        h.update(f.name.encode())
+        h.update(f.read_bytes())
+    target = cache_dir() / f"{source.name}-{h.hexdigest()[:16]}.db"
     if target.is_file():
         return target
     target.parent.mkdir(parents=True, exist_ok=True)
@@ -82,5 +86,13 @@ def _gtfs_database(sc: Scenario, source: Path) -> Path:
 
 
 def build_gtfs_database(source: Path, shape_id: str, target: Path) -> None:
-    """Import one GTFS shape into a new track database at ``target``."""
-    raise SimError("GTFS import needs the track_db importer, which this checkout does not have yet")
+    """Import one GTFS shape (``source``: a feed directory or zip) into a new track database at ``target``."""
+    from track_db.build import create_database
+    from track_db.errors import TrackDbError
+    from track_db.importers import ImportOptions, load_source
+
+    try:
+        batch = load_source(source, "gtfs", ImportOptions(shape=shape_id))
+        create_database(target, batch.lines, stops=batch.stops, overwrite=True)
+    except TrackDbError as exc:
+        raise SimError(f"cannot build the track database from {str(source)!r}: {exc}") from exc
