@@ -191,18 +191,21 @@ class ListenerService:
         if wd is not None:
             tasks.append(asyncio.ensure_future(self._watchdog(wd)))
         self.log.info(
-            "ready", port=self.bound_port, bind=inp.bind, obcu=f"{link.obcu_host}:{link.obcu_port}",
+            "ready",
+            port=self.bound_port,
+            bind=inp.bind,
+            obcu=f"{link.obcu_host}:{link.obcu_port}",
             watchdog_s=wd,
         )
         self.notifier.ready(f"listening on {inp.bind}:{self.bound_port}")
         try:
             await self._done.wait()
         finally:
+            for task in tasks:  # no WATCHDOG=1 after STOPPING=1
+                task.cancel()
             self.notifier.stopping(f"stopping: {self._exit_reason or 'cancelled'}")
             if not self.pipeline.stopped:
                 self._send(self.pipeline.flush(loop.time()))
-            for task in tasks:
-                task.cancel()
             if self._timer is not None:
                 self._timer.cancel()
             self.log.info("exit", reason=self._exit_reason, **self.metrics())
