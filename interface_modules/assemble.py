@@ -17,7 +17,7 @@ The control module sends GROUND TRUTH 0.1 s before the first sample (it carries 
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
 
@@ -30,8 +30,7 @@ STOP_LAG_S = 0.5  #: STOP is sent this long after the last truth sample [s]
 MIN_SPACING_S = 1e-6  #: minimum spacing of one sender's packets [s]
 
 
-@dataclass(frozen=True, slots=True)
-class Packet:
+class Packet(NamedTuple):
     """One datagram as captured on the listener's host."""
 
     arrival_s: float  #: capture timestamp (host clock = sensor-set time + host_clock_offset_s) [s]
@@ -87,41 +86,17 @@ def silent_mask(t: np.ndarray, faults: list[Fault]) -> np.ndarray:
     return mask
 
 
-def sensor_messages(stream: SampleStream, module: ModuleConfig, start_epoch_s: float, faults: list[Fault]):
-    """(sample times, InputMessage list) of the datagrams one sensor module sends."""
-    from listener.codec import GpsFix, ImuSample, OdometerSample
+def sensor_payloads(stream: SampleStream, module: ModuleConfig, start_epoch_s: float, faults: list[Fault]):
+    """(sample times, datagrams) one sensor module sends (bulk-packed, see ``wirepack``)."""
+    from .wirepack import pack_stream
 
     send = stream.send & ~silent_mask(stream.t_s, faults)
     idx = np.flatnonzero(send)
     t = stream.t_s[idx]
-    seq = sequence_numbers(t, module.seq_start, faults).tolist()
-    epochs = (start_epoch_s + t).tolist() if module.send_epoch else [None] * idx.size
-    v = {k: arr[idx].tolist() for k, arr in stream.values.items()}
-    if stream.module == "imu":
-        msgs = [
-            ImuSample(*row)
-            for row in zip(seq, v["ax"], v["ay"], v["az"], v["gx"], v["gy"], v["gz"], epochs, strict=True)
-        ]
-    elif stream.module == "odometer":
-        msgs = [OdometerSample(*row) for row in zip(seq, v["speed"], v["sigma"], epochs, strict=True)]
-    elif stream.module == "gps":
-        msgs = [
-            GpsFix(*row)
-            for row in zip(
-                seq,
-                v["lat"],
-                v["lon"],
-                v["alt"],
-                v["fix_quality"],
-                v["num_sv"],
-                v["sigma_h"],
-                epochs,
-                strict=True,
-            )
-        ]
-    else:  # pragma: no cover - programming error
-        raise ValueError(stream.module)
-    return t, msgs
+    seq = sequence_numbers(t, module.seq_start, faults)
+    epochs = start_epoch_s + t if module.send_epoch else None
+    values = {k: arr[idx] for k, arr in stream.values.items()}
+    return t, pack_stream(stream.module, seq, values, epochs)
 
 
 def control_schedule(end_s: float, rate_hz: float, faults: list[Fault]) -> tuple[np.ndarray, list[str]]:

@@ -21,8 +21,91 @@ SRC_MAC = b"\x02\x00\x00\x00\x00\x01"  #: locally administered MAC of the sensor
 DST_MAC = b"\x02\x00\x00\x00\x00\x02"  #: locally administered MAC of the listener's host
 
 
+def udp_frames(packets, src_ip: bytes, dst_ip: bytes, dst_port: int) -> list[bytes]:
+    """Ethernet II / IPv4 / UDP frames of ``packets`` (vectorised; byte-identical to dpkt's construction).
+
+    IPv4: version 4, IHL 5, TOS 0, DF clear, TTL 64, protocol 17, identification counting per source
+    port; header checksum and UDP checksum (over the pseudo-header) computed as RFC 768/791 say
+    (a computed UDP checksum of 0 is sent as 0xFFFF). tests/test_sim_capture.py compares these
+    frames with frames built field by field with dpkt.
+    """
+    n = len(packets)
+    ports = np.fromiter((p.src_port for p in packets), dtype=np.int64, count=n)
+    lengths = np.fromiter((len(p.payload) for p in packets), dtype=np.int64, count=n)
+    ident = np.zeros(n, dtype=np.int64)
+    for port in np.unique(ports):
+        idx = np.flatnonzero(ports == port)
+        ident[idx] = np.arange(idx.size) & 0xFFFF
+    src_w = np.frombuffer(src_ip, dtype=">u2").astype(np.int64)
+    dst_w = np.frombuffer(dst_ip, dtype=">u2").astype(np.int64)
+    frames: list[bytes | None] = [None] * n
+    for length in np.unique(lengths):
+        idx = np.flatnonzero(lengths == length)
+        m, L = idx.size, int(length)
+        body = np.frombuffer(b"".join(packets[i].payload for i in idx.tolist()), dtype=np.uint8).reshape(m, L)
+        padded = np.zeros((m, L + (L & 1)), dtype=np.int64)
+        padded[:, :L] = body
+        words = (padded[:, 0::2] << 8) | padded[:, 1::2]
+        ulen = 8 + L
+        total = 20 + ulen
+        sport = ports[idx]
+        # UDP checksum: pseudo-header (src, dst, proto, UDP length) + UDP header (checksum 0) + data
+        s = words.sum(axis=1) + src_w.sum() + dst_w.sum() + 17 + ulen + sport + dst_port + ulen
+        udp_sum = _fold(s) ^ 0xFFFF
+        udp_sum[udp_sum == 0] = 0xFFFF
+        ip_sum = (
+            _fold(0x4500 + total + ident[idx] + 0 + ((64 << 8) | 17) + src_w.sum() + dst_w.sum()) ^ 0xFFFF
+        )
+        rec = np.empty(
+            m,
+            dtype=np.dtype(
+                [
+                    ("dst", "V6"),
+                    ("src", "V6"),
+                    ("etype", ">u2"),
+                    ("vhl", "u1"),
+                    ("tos", "u1"),
+                    ("len", ">u2"),
+                    ("id", ">u2"),
+                    ("off", ">u2"),
+                    ("ttl", "u1"),
+                    ("p", "u1"),
+                    ("sum", ">u2"),
+                    ("ip_src", "V4"),
+                    ("ip_dst", "V4"),
+                    ("sport", ">u2"),
+                    ("dport", ">u2"),
+                    ("ulen", ">u2"),
+                    ("usum", ">u2"),
+                    ("data", "u1", (L,)),
+                ]
+            ),
+        )
+        rec["dst"] = np.void(DST_MAC)
+        rec["src"] = np.void(SRC_MAC)
+        rec["etype"] = 0x0800
+        rec["vhl"], rec["tos"], rec["len"], rec["id"], rec["off"] = 0x45, 0, total, ident[idx], 0
+        rec["ttl"], rec["p"], rec["sum"] = 64, 17, ip_sum
+        rec["ip_src"], rec["ip_dst"] = np.void(src_ip), np.void(dst_ip)
+        rec["sport"], rec["dport"], rec["ulen"], rec["usum"] = sport, dst_port, ulen, udp_sum
+        rec["data"] = body
+        size = rec.dtype.itemsize
+        buf = rec.tobytes()
+        for j, i in enumerate(idx.tolist()):
+            frames[i] = buf[j * size : (j + 1) * size]
+    return frames
+
+
+def _fold(s: np.ndarray) -> np.ndarray:
+    """One's-complement fold of 16-bit word sums."""
+    s = np.asarray(s, dtype=np.int64)
+    while np.any(s >> 16):
+        s = (s & 0xFFFF) + (s >> 16)
+    return s
+
+
 def write_pcap(run, path: str | Path) -> int:
-    """Write the run's packets as a classic pcap; return the number of frames."""
+    """Write the run's packets as a classic pcap (dpkt.pcap.Writer); return the number of frames."""
     import dpkt
 
     net = run.scenario.network
@@ -31,24 +114,14 @@ def write_pcap(run, path: str | Path) -> int:
         dst_ip = socket.inet_aton(net.listener_host)
     except OSError as exc:
         raise SimError(f"network.host / listener_host must be IPv4 addresses: {exc}") from exc
-    ip_ids: dict[int, int] = {}
+    frames = udp_frames(run.packets, src_ip, dst_ip, net.listener_port)
     try:
         with open(path, "wb") as fh:
-            writer = dpkt.pcap.Writer(fh, linktype=dpkt.pcap.DLT_EN10MB)
-            for p in run.packets:
-                udp = dpkt.udp.UDP(sport=p.src_port, dport=net.listener_port, data=p.payload)
-                udp.ulen = len(udp)
-                ident = ip_ids.get(p.src_port, 0)
-                ip_ids[p.src_port] = (ident + 1) & 0xFFFF
-                ip = dpkt.ip.IP(src=src_ip, dst=dst_ip, p=dpkt.ip.IP_PROTO_UDP, ttl=64, id=ident, data=udp)
-                ip.len = len(ip)
-                frame = dpkt.ethernet.Ethernet(
-                    src=SRC_MAC, dst=DST_MAC, type=dpkt.ethernet.ETH_TYPE_IP, data=ip
-                )
-                writer.writepkt(bytes(frame), ts=p.arrival_s)
+            writer = dpkt.pcap.Writer(fh, snaplen=65535, linktype=dpkt.pcap.DLT_EN10MB)
+            writer.writepkts(zip((p.arrival_s for p in run.packets), frames, strict=True))
     except OSError as exc:
         raise SimError(f"cannot write capture {str(path)!r}: {exc}") from exc
-    return len(run.packets)
+    return len(frames)
 
 
 def event_column(run) -> list[str]:
@@ -64,26 +137,27 @@ def event_column(run) -> list[str]:
     return col
 
 
+def _csv_field(text: str) -> str:
+    """A CSV field: double quotes become single quotes; quoted if it holds a comma."""
+    text = text.replace('"', "'").replace("\n", " ")
+    return f'"{text}"' if "," in text else text
+
+
 def write_truth_csv(run, path: str | Path) -> int:
     """Write truth.csv (docs/simulator.md); return the number of rows."""
     tr = run.truth
-    events = event_column(run)
-    fmt = {
-        "epoch": "{:.3f}".format,
-        "arc_length": "{:.4f}".format,
-        "speed": "{:.5f}".format,
-        "accel": "{:.5f}".format,
-        "lat": "{:.9f}".format,
-        "lon": "{:.9f}".format,
-        "line_id": lambda x: str(int(x)),
-        "direction": lambda x: str(int(x)),
-    }
-    cols = [[fmt[name](x) for x in tr[name].tolist()] for name in TRUTH_COLUMNS[:-1]]
+    events = [
+        f'"{e}"' if ("," in e or '"' in e) and '"' not in e else e.replace('"', "'")
+        for e in event_column(run)
+    ]
+    row = "%.3f,%.4f,%.5f,%.5f,%.9f,%.9f,%d,%d,%s"
+    cols = [tr[name].tolist() for name in TRUTH_COLUMNS[:-1]]
     try:
-        with open(path, "w", newline="", encoding="utf-8") as fh:
-            w = csv.writer(fh)
-            w.writerow(TRUTH_COLUMNS)
-            w.writerows(zip(*cols, events, strict=True))
+        with open(path, "w", encoding="utf-8", newline="") as fh:
+            fh.write(",".join(TRUTH_COLUMNS) + "\n")
+            rows = zip(*cols, events, strict=True)
+            fh.write("\n".join(map(row.__mod__, rows)))
+            fh.write("\n")
     except OSError as exc:
         raise SimError(f"cannot write truth {str(path)!r}: {exc}") from exc
     return len(events)

@@ -17,6 +17,7 @@ from __future__ import annotations
 from collections.abc import Callable
 from dataclasses import dataclass
 
+import numba
 import numpy as np
 
 from . import dynamics
@@ -71,6 +72,86 @@ class Trajectory:
     events: list[tuple[float, str, str]]  #: (t [s from start], kind, detail)
 
 
+@numba.njit(cache=True)
+def _leg_kernel(state, params, vp, ap, fg_arr, fc_arr, out_s, out_v, out_a, k0, k_limit, k_overrun):
+    """Drive one leg from ``state`` = [s, v, u_prev] at step ``k0`` (see module doc).
+
+    ``params`` = [dt, s0, direction, length, inv_dx, preview_s, kp, ki, m_eff, jerk_df, brake_n, A, B, C,
+    traction_const, power, holding_speed, stop_tol, plan_decel, mass, rot_factor]. Writes one row per
+    step into ``out_*`` and returns (steps written, status): 0 arrived, 1 time limit, 2 overrun.
+    """
+    dt, s0, d, length, inv_dx, preview_s = params[0], params[1], params[2], params[3], params[4], params[5]
+    kp, ki, m_eff, jerk_df, brake_n = params[6], params[7], params[8], params[9], params[10]
+    a_davis, b_davis, c_davis, trac_const, power = params[11], params[12], params[13], params[14], params[15]
+    hold_v, stop_tol, plan_decel = params[16], params[17], params[18]
+    s, v, u_prev = state[0], state[1], state[2]
+    integ = 0.0
+    n_grid = vp.size
+    n = 0
+    k = k0
+    while True:
+        if k >= k_limit:
+            state[0], state[1], state[2] = s, v, u_prev
+            return n, 1
+        x = d * (s - s0)
+        if v == 0.0 and x >= length - stop_tol:
+            state[0], state[1], state[2] = s, v, u_prev
+            return n, 0
+        if k >= k_overrun:
+            state[0], state[1], state[2] = s, v, u_prev
+            return n, 2
+        # reference speed and feedforward at the previewed distance (linear interpolation)
+        xp = x + v * preview_s
+        fi = xp * inv_dx
+        if fi <= 0.0:
+            i, frac = 0, 0.0
+        elif fi >= n_grid - 1:
+            i, frac = n_grid - 2, 1.0
+        else:
+            i = int(fi)
+            frac = fi - i
+        if xp >= length:
+            v_ref, a_ff = 0.0, -plan_decel
+        else:
+            v_ref = vp[i] + (vp[i + 1] - vp[i]) * frac
+            a_ff = ap[i] + (ap[i + 1] - ap[i]) * frac
+        # grade and curve forces at the current position
+        ix = int(x * inv_dx + 0.5)
+        ix = min(max(ix, 0), n_grid - 1)
+        fg = fg_arr[ix]
+        fc = fc_arr[ix]
+        err = v_ref - v
+        a_cmd = a_ff + kp * err + ki * integ
+        f_res = a_davis + b_davis * v + c_davis * v * v if v > 0.0 else 0.0
+        u_des = m_eff * a_cmd + f_res + fg + fc
+        if v < hold_v and x >= length - stop_tol:
+            u_des = -brake_n  # final stop: holding brake
+        u_max = trac_const if v <= 1e-6 else min(trac_const, power / v)
+        u = min(max(u_des, -brake_n), u_max)
+        saturated = u != u_des
+        u = min(max(u, u_prev - jerk_df), u_prev + jerk_df)
+        if not saturated:
+            integ += err * dt
+        u_prev = u
+        # M_eff dv/dt = u - Davis - grade - curve; at rest the brakes hold the train (no rollback)
+        if v <= 0.0:
+            drive_f = u - fg - a_davis - fc
+            a = drive_f / m_eff if drive_f > 0.0 else 0.0
+        else:
+            a = (u - (a_davis + b_davis * v + c_davis * v * v) - fg - fc) / m_eff
+        v_next = v + a * dt
+        if v_next < 0.0:
+            a = -v / dt
+            v_next = 0.0
+        out_s[n] = s
+        out_v[n] = v
+        out_a[n] = a
+        n += 1
+        s = s + d * (v * dt + 0.5 * a * dt * dt)
+        v = v_next
+        k += 1
+
+
 def drive(
     spec: TrainSpec,
     legs: list[LegSchedule],
@@ -84,50 +165,38 @@ def drive(
     if not legs:
         raise SimError("a journey needs at least two stopping points")
     cfg = driver or DriverConfig()
-    m_eff = spec.effective_mass_kg
-    jerk_df = m_eff * spec.jerk_limit_mps3 * dt_s
-    brake_n = dynamics.brake_limit_n(spec)
-    a_davis, b_davis, c_davis = spec.davis_a_n, spec.davis_b_n_per_mps, spec.davis_c_n_per_mps2
-    kp, ki = cfg.kp_per_s, cfg.ki_per_s2
-    # preview: the jerk limit needs about a/(2 j) to build up an acceleration change
     preview_s = (
         cfg.preview_factor * max(spec.plan_accel_mps2, spec.plan_decel_mps2) / (2.0 * spec.jerk_limit_mps3)
     )
-    limit_t = float("inf") if max_time_s is None else float(max_time_s)
-
-    ts: list[float] = []
-    ss: list[float] = []
-    vs: list[float] = []
-    accs: list[float] = []
-    dirs: list[int] = []
+    k_limit = np.iinfo(np.int64).max if max_time_s is None else int(np.ceil(max_time_s / dt_s - 1e-9))
+    adhesion = spec.adhesion_coefficient * spec.adhesive_mass_fraction * spec.mass_kg * 9.80665
+    chunks_s: list[np.ndarray] = []
+    chunks_v: list[np.ndarray] = []
+    chunks_a: list[np.ndarray] = []
+    chunks_d: list[np.ndarray] = []
     events: list[tuple[float, str, str]] = []
-
     k = 0
-    s = legs[0].plan.s_start_m
-    v = 0.0
-    u_prev = 0.0
+    state = np.array([legs[0].plan.s_start_m, 0.0, 0.0])
     arrived_t = 0.0
     prev_dir = legs[0].plan.direction
     truncated = False
 
-    def hold_until(t_end: float, direction: int) -> bool:
+    def hold(k_end: int, direction: int) -> bool:
         nonlocal k
-        while k * dt_s < t_end - 1e-9:
-            t = k * dt_s
-            if t >= limit_t:
-                return False
-            ts.append(t)
-            ss.append(s)
-            vs.append(0.0)
-            accs.append(0.0)
-            dirs.append(direction)
-            k += 1
-        return True
+        k_stop = min(k_end, k_limit)
+        if k_stop > k:
+            m = k_stop - k
+            chunks_s.append(np.full(m, state[0]))
+            chunks_v.append(np.zeros(m))
+            chunks_a.append(np.zeros(m))
+            chunks_d.append(np.full(m, direction, dtype=np.int8))
+            k = k_stop
+        return k_end <= k_limit
 
     for leg in legs:
         plan = leg.plan
         depart_t = max(arrived_t + leg.min_dwell_s, leg.departure_s)
-        if not hold_until(depart_t, prev_dir):
+        if not hold(int(np.ceil(depart_t / dt_s - 1e-9)), prev_dir):
             truncated = True
             break
         late_s = k * dt_s - leg.departure_s
@@ -138,99 +207,86 @@ def drive(
             events.append((k * dt_s, "reverse", f"cab change at {leg.from_name}"))
         prev_dir = plan.direction
         events.append((k * dt_s, "depart", f"{leg.from_name} (scheduled {leg.departure_s:.1f} s)"))
-        u_prev = 0.0  # holding brake released
-        integ = 0.0
-        x_grid_n = plan.x_m.size
-        inv_dx = 1.0 / plan.dx_m
-        vp = plan.v_mps.tolist()
-        ap = plan.a_ff_mps2.tolist()
-        f_grade = dynamics.grade_force_n(spec, plan.grade).tolist()
-        f_curve = dynamics.curve_resistance_n(spec, plan.curvature_per_m).tolist()
-        length = plan.length_m
-        s0 = plan.s_start_m
-        d = plan.direction
-        pass_next = 0
-        n_pass = len(plan.pass_x_m)
-        t_leg0 = k * dt_s
-        t_leg_limit = t_leg0 + plan.run_time_s + cfg.max_leg_overrun_s
-        while True:
-            t = k * dt_s
-            if t >= limit_t:
-                truncated = True
-                break
-            x = d * (s - s0)
-            while pass_next < n_pass and x >= plan.pass_x_m[pass_next]:
-                sched = leg.pass_scheduled_s[pass_next] if pass_next < len(leg.pass_scheduled_s) else None
-                name = leg.pass_names[pass_next] if pass_next < len(leg.pass_names) else "pass"
-                detail = f"{name} at {v * 3.6:.1f} km/h" + (
-                    f" (scheduled {sched:.1f} s, {t - sched:+.1f} s)" if sched is not None else ""
-                )
-                events.append((t, "pass", detail))
-                pass_next += 1
-            if v == 0.0 and x >= length - cfg.stop_tolerance_m:
-                arrived_t = t
-                sched = leg.arrival_s
-                detail = f"{leg.to_name} stop error {x - length:+.2f} m" + (
-                    f" (scheduled {sched:.1f} s, {t - sched:+.1f} s)" if sched is not None else ""
-                )
-                events.append((t, "arrive", detail))
-                break
-            if t > t_leg_limit:
-                raise SimError(
-                    f"train did not reach {leg.to_name} within {cfg.max_leg_overrun_s:.0f} s of plan"
-                )
-            # reference speed and feedforward at the current distance (linear interpolation)
-            fi = (x + v * preview_s) * inv_dx
-            if fi <= 0.0:
-                i, frac = 0, 0.0
-            elif fi >= x_grid_n - 1:
-                i, frac = x_grid_n - 2, 1.0
-            else:
-                i = int(fi)
-                frac = fi - i
-            if x + v * preview_s >= length:
-                v_ref, a_ff = 0.0, -spec.plan_decel_mps2
-            else:
-                v_ref = vp[i] + (vp[i + 1] - vp[i]) * frac
-                a_ff = ap[i] + (ap[i + 1] - ap[i]) * frac
-            fg = f_grade[i]
-            fc = f_curve[i]
-            err = v_ref - v
-            a_cmd = a_ff + kp * err + ki * integ
-            f_res = (a_davis + b_davis * v + c_davis * v * v) if v > 0.0 else 0.0
-            u_des = m_eff * a_cmd + f_res + fg + fc
-            if v < cfg.holding_speed_mps and x >= length - cfg.stop_tolerance_m:
-                u_des = -brake_n  # final stop: holding brake
-            u_max = dynamics.traction_limit_n(spec, v)
-            u = min(max(u_des, -brake_n), u_max)
-            saturated = u != u_des
-            u = min(max(u, u_prev - jerk_df), u_prev + jerk_df)
-            if not saturated:
-                integ += err * dt_s
-            u_prev = u
-            a = dynamics.acceleration_mps2(spec, u, v, fg, fc)
-            v_next = v + a * dt_s
-            if v_next < 0.0:
-                a = -v / dt_s
-                v_next = 0.0
-            ts.append(t)
-            ss.append(s)
-            vs.append(v)
-            accs.append(a)
-            dirs.append(d)
-            s = s + d * (v * dt_s + 0.5 * a * dt_s * dt_s)
-            v = v_next
-            k += 1
-        if truncated:
+        state[1] = 0.0
+        state[2] = 0.0  # holding brake released
+        params = np.array(
+            [
+                dt_s,
+                plan.s_start_m,
+                float(plan.direction),
+                plan.length_m,
+                1.0 / plan.dx_m,
+                preview_s,
+                cfg.kp_per_s,
+                cfg.ki_per_s2,
+                spec.effective_mass_kg,
+                spec.effective_mass_kg * spec.jerk_limit_mps3 * dt_s,
+                dynamics.brake_limit_n(spec),
+                spec.davis_a_n,
+                spec.davis_b_n_per_mps,
+                spec.davis_c_n_per_mps2,
+                min(spec.max_tractive_effort_n, adhesion),
+                spec.max_power_w,
+                cfg.holding_speed_mps,
+                cfg.stop_tolerance_m,
+                spec.plan_decel_mps2,
+            ]
+        )
+        k_overrun = k + int((plan.run_time_s + cfg.max_leg_overrun_s) / dt_s)
+        size = min(k_overrun, k_limit) - k + 2
+        out_s, out_v, out_a = np.empty(size), np.empty(size), np.empty(size)
+        fg = np.asarray(dynamics.grade_force_n(spec, plan.grade), dtype=float)
+        fc = np.asarray(dynamics.curve_resistance_n(spec, plan.curvature_per_m), dtype=float)
+        k_start = k
+        n, status = _leg_kernel(
+            state, params, plan.v_mps, plan.a_ff_mps2, fg, fc, out_s, out_v, out_a, k, k_limit, k_overrun
+        )
+        chunks_s.append(out_s[:n])
+        chunks_v.append(out_v[:n])
+        chunks_a.append(out_a[:n])
+        chunks_d.append(np.full(n, plan.direction, dtype=np.int8))
+        k += n
+        events.extend(_pass_events(leg, plan, out_s[:n], out_v[:n], k_start, dt_s))
+        if status == 2:
+            raise SimError(f"train did not reach {leg.to_name} within {cfg.max_leg_overrun_s:.0f} s of plan")
+        if status == 1:
+            truncated = True
             break
+        arrived_t = k * dt_s
+        x_end = plan.direction * (state[0] - plan.s_start_m)
+        detail = f"{leg.to_name} stop error {x_end - plan.length_m:+.2f} m"
+        if leg.arrival_s is not None:
+            detail += f" (scheduled {leg.arrival_s:.1f} s, {arrived_t - leg.arrival_s:+.1f} s)"
+        events.append((arrived_t, "arrive", detail))
     if not truncated:
-        hold_until(k * dt_s + tail_s, prev_dir)
+        hold(k + int(round(tail_s / dt_s)), prev_dir)
+    cat = np.concatenate
+    n_total = k
     return Trajectory(
         dt_s=dt_s,
-        t_s=np.asarray(ts, dtype=float),
-        s_m=np.asarray(ss, dtype=float),
-        v_mps=np.asarray(vs, dtype=float),
-        a_mps2=np.asarray(accs, dtype=float),
-        direction=np.asarray(dirs, dtype=np.int8),
+        t_s=np.arange(n_total) * dt_s,
+        s_m=cat(chunks_s) if chunks_s else np.empty(0),
+        v_mps=cat(chunks_v) if chunks_v else np.empty(0),
+        a_mps2=cat(chunks_a) if chunks_a else np.empty(0),
+        direction=cat(chunks_d) if chunks_d else np.empty(0, dtype=np.int8),
         events=events,
     )
+
+
+def _pass_events(leg: LegSchedule, plan: LegPlan, s: np.ndarray, v: np.ndarray, k_start: int, dt_s: float):
+    """Events of the passing points the leg went through."""
+    out = []
+    x = plan.direction * (s - plan.s_start_m)
+    for j, x_p in enumerate(plan.pass_x_m):
+        hit = np.flatnonzero(x >= x_p)
+        if hit.size == 0:
+            continue
+        i = int(hit[0])
+        t = (k_start + i) * dt_s
+        name = leg.pass_names[j] if j < len(leg.pass_names) else "pass"
+        sched = leg.pass_scheduled_s[j] if j < len(leg.pass_scheduled_s) else None
+        detail = f"{name} at {v[i] * 3.6:.1f} km/h"
+        if sched is not None:
+            detail += f" (scheduled {sched:.1f} s, {t - sched:+.1f} s)"
+        out.append((t, "pass", detail))
+    return out

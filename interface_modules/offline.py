@@ -14,7 +14,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from . import faults as faults_mod
-from .assemble import Packet, control_messages, control_schedule, send_times, sensor_messages
+from .assemble import Packet, control_messages, control_schedule, send_times, sensor_payloads
 from .errors import SimError
 from .faults import Fault
 from .journey import build_legs
@@ -183,9 +183,9 @@ def generate(
     for name, stream in streams.items():
         module = getattr(sc, name)
         mfaults = faults_mod.of_sensor(all_faults, name)
-        t, msgs = sensor_messages(stream, module, sc.start_epoch_s, mfaults)
+        t, payloads = sensor_payloads(stream, module, sc.start_epoch_s, mfaults)
         send, arrival = send_times(t, module, sc.network, rng_for(seed, f"net:{name}"))
-        columns.append((send, arrival, module.port, [encode_input(m) for m in msgs], name))
+        columns.append((send, arrival, module.port, payloads, name))
     ctl = sc.control
     cfaults = faults_mod.of_sensor(all_faults, "control")
     end_s = float(traj.t_s[-1])
@@ -228,7 +228,7 @@ def _merge(columns, start_epoch_s: float, offset_s: float) -> list[Packet]:
     sends = np.concatenate([c[0] for c in columns])
     payloads = [p for c in columns for p in c[3]]
     names = [c[4] for c in columns for _ in c[3]]
-    arr_l = (arrival + offset_s).tolist()
+    arr_l = np.round(arrival + offset_s, 6).tolist()  # capture timestamps have microsecond resolution
     send_l = (sends + start_epoch_s).tolist()
     port_l = ports.tolist()
     return [Packet(arr_l[i], port_l[i], payloads[i], send_l[i], names[i]) for i in order.tolist()]
