@@ -97,8 +97,18 @@ class MockObcu:
         try:
             if len(data) > 18:
                 ext = decode_output_extended(data)
-                rec = Received(now, ext.seq, ext.epoch, ext.arc_length, len(data), ext.speed,
-                               ext.interval_low, ext.interval_high, ext.status, ext.line_id)
+                rec = Received(
+                    now,
+                    ext.seq,
+                    ext.epoch,
+                    ext.arc_length,
+                    len(data),
+                    ext.speed,
+                    ext.interval_low,
+                    ext.interval_high,
+                    ext.status,
+                    ext.line_id,
+                )
             else:
                 msg = decode_output(data)
                 rec = Received(now, msg.seq, msg.epoch, msg.arc_length, len(data))

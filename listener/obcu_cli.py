@@ -32,12 +32,30 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--bind", default="127.0.0.1", help="address to bind (default 127.0.0.1)")
     parser.add_argument("--ack-interval", type=float, default=1.0, help="seconds between acks (default 1)")
     parser.add_argument("--csv", help="write every received output to this CSV file")
-    parser.add_argument("--drop-acks", type=_window, action="append", default=[], metavar="START:DURATION",
-                        help="receive but do not ack in this window (seconds from start; repeatable)")
-    parser.add_argument("--silent", type=_window, action="append", default=[], metavar="START:DURATION",
-                        help="ignore everything in this window (repeatable)")
-    parser.add_argument("--restart-at", type=float, action="append", default=[], metavar="T",
-                        help="forget all state at T seconds from start (repeatable)")
+    parser.add_argument(
+        "--drop-acks",
+        type=_window,
+        action="append",
+        default=[],
+        metavar="START:DURATION",
+        help="receive but do not ack in this window (seconds from start; repeatable)",
+    )
+    parser.add_argument(
+        "--silent",
+        type=_window,
+        action="append",
+        default=[],
+        metavar="START:DURATION",
+        help="ignore everything in this window (repeatable)",
+    )
+    parser.add_argument(
+        "--restart-at",
+        type=float,
+        action="append",
+        default=[],
+        metavar="T",
+        help="forget all state at T seconds from start (repeatable)",
+    )
     parser.add_argument("--duration", type=float, help="exit after this many seconds")
     parser.add_argument("--idle-exit", type=float, help="exit after this many seconds without outputs")
     parser.add_argument("--quiet", action="store_true", help="no live display")
@@ -71,8 +89,20 @@ def run(args: argparse.Namespace) -> int:
     csv_file = open(args.csv, "w", newline="") if args.csv else None  # noqa: SIM115 - closed below
     writer = csv.writer(csv_file) if csv_file else None
     if writer:
-        writer.writerow(["time_s", "seq", "epoch", "arc_length", "size", "speed", "interval_low",
-                         "interval_high", "status", "line_id"])
+        writer.writerow(
+            [
+                "time_s",
+                "seq",
+                "epoch",
+                "arc_length",
+                "size",
+                "speed",
+                "interval_low",
+                "interval_high",
+                "status",
+                "line_id",
+            ]
+        )
 
     async def main() -> int:
         loop = asyncio.get_running_loop()
@@ -91,9 +121,20 @@ def run(args: argparse.Namespace) -> int:
                 if rec is not None:
                     state["last_rx"] = now
                     if writer:
-                        writer.writerow([f"{now - start:.6f}", rec.seq, repr(rec.epoch), repr(rec.arc_length),
-                                         rec.size, _opt(rec.speed), _opt(rec.interval_low),
-                                         _opt(rec.interval_high), _opt(rec.status), _opt(rec.line_id)])
+                        writer.writerow(
+                            [
+                                f"{now - start:.6f}",
+                                rec.seq,
+                                repr(rec.epoch),
+                                repr(rec.arc_length),
+                                rec.size,
+                                _opt(rec.speed),
+                                _opt(rec.interval_low),
+                                _opt(rec.interval_high),
+                                _opt(rec.status),
+                                _opt(rec.line_id),
+                            ]
+                        )
                 rearm()
 
             def error_received(self, exc):
@@ -121,8 +162,11 @@ def run(args: argparse.Namespace) -> int:
         for sig in (signal.SIGTERM, signal.SIGINT):
             loop.add_signal_handler(sig, done.set)
         bound = transport.get_extra_info("sockname")
-        print(json.dumps({"event": "obcu_ready", "bind": bound[0], "port": bound[1]}), file=sys.stderr,
-              flush=True)
+        print(
+            json.dumps({"event": "obcu_ready", "bind": bound[0], "port": bound[1]}),
+            file=sys.stderr,
+            flush=True,
+        )
 
         async def supervise():
             while not done.is_set():
@@ -130,14 +174,21 @@ def run(args: argparse.Namespace) -> int:
                 now = loop.time()
                 if args.duration is not None and now - start >= args.duration:
                     done.set()
-                if args.idle_exit is not None and state["last_rx"] is not None \
-                        and now - state["last_rx"] >= args.idle_exit:
+                if (
+                    args.idle_exit is not None
+                    and state["last_rx"] is not None
+                    and now - state["last_rx"] >= args.idle_exit
+                ):
                     done.set()
                 if not args.quiet and core.newest is not None:
                     n = core.newest
-                    print(f"\robcu: seq {n.seq:5d}  epoch {n.epoch:.2f}  s {n.arc_length:10.2f} m  "
-                          f"rx {core.stats.received}  acks {core.stats.acks_sent}", end="", file=sys.stderr,
-                          flush=True)
+                    print(
+                        f"\robcu: seq {n.seq:5d}  epoch {n.epoch:.2f}  s {n.arc_length:10.2f} m  "
+                        f"rx {core.stats.received}  acks {core.stats.acks_sent}",
+                        end="",
+                        file=sys.stderr,
+                        flush=True,
+                    )
                 if csv_file:
                     csv_file.flush()
 
@@ -146,12 +197,24 @@ def run(args: argparse.Namespace) -> int:
         sup.cancel()
         transport.close()
         st = core.stats
-        print(("\n" if not args.quiet else "") + json.dumps({
-            "event": "obcu_exit", "received": st.received, "malformed": st.malformed,
-            "duplicates": st.duplicates, "acks_sent": st.acks_sent, "acks_dropped": st.acks_dropped,
-            "ignored_silent": st.ignored_silent, "restarts": st.restarts,
-            "sizes": {str(k): v for k, v in st.by_size.items()},
-        }), file=sys.stderr, flush=True)
+        print(
+            ("\n" if not args.quiet else "")
+            + json.dumps(
+                {
+                    "event": "obcu_exit",
+                    "received": st.received,
+                    "malformed": st.malformed,
+                    "duplicates": st.duplicates,
+                    "acks_sent": st.acks_sent,
+                    "acks_dropped": st.acks_dropped,
+                    "ignored_silent": st.ignored_silent,
+                    "restarts": st.restarts,
+                    "sizes": {str(k): v for k, v in st.by_size.items()},
+                }
+            ),
+            file=sys.stderr,
+            flush=True,
+        )
         return 0
 
     try:

@@ -19,7 +19,7 @@ from listener.codec import (
     encode_ack,
     encode_input,
 )
-from listener.config import ListenerConfig, LinkConfig, config_from_dict
+from listener.config import LinkConfig, ListenerConfig, config_from_dict
 from listener.pipeline import Pipeline
 from sfa.measurements import GpsMeas, ImuMeas, InitMeas, OdoMeas
 from sfa.synthetic import build_track_db, generate
@@ -37,8 +37,13 @@ def track(tmp_path_factory):
 @pytest.fixture(scope="module")
 def run(track):
     return generate(
-        track, 1, 40.0, IMU_PRESETS["mems-train"], ODOMETER_PRESETS["wheel-odometer"],
-        GPS_PRESETS["standalone"], seed=3,
+        track,
+        1,
+        40.0,
+        IMU_PRESETS["mems-train"],
+        ODOMETER_PRESETS["wheel-odometer"],
+        GPS_PRESETS["standalone"],
+        seed=3,
     )
 
 
@@ -60,15 +65,21 @@ def _datagrams(run, start_seq=65500, with_epochs=True):
             next_strobe += 1.0
         ep = m.t_s if with_epochs else None
         if isinstance(m, InitMeas):
-            emit("ctl", lambda q, m=m: GroundTruth(q, m.speed_mps, 0.0, 0.0, m.arc_length_m, m.line_id,
-                                                   m.t_s), m.t_s)
+            emit(
+                "ctl",
+                lambda q, m=m: GroundTruth(q, m.speed_mps, 0.0, 0.0, m.arc_length_m, m.line_id, m.t_s),
+                m.t_s,
+            )
         elif isinstance(m, ImuMeas):
             emit("imu", lambda q, m=m, ep=ep: ImuSample(q, *m.f_mps2, *m.w_radps, ep), m.t_s)
         elif isinstance(m, OdoMeas):
             emit("odo", lambda q, m=m, ep=ep: OdometerSample(q, m.speed_mps, m.sigma_mps, ep), m.t_s)
         elif isinstance(m, GpsMeas):
-            emit("gps", lambda q, m=m, ep=ep: GpsFix(q, m.lat_deg, m.lon_deg, m.alt_m, 1, 12,
-                                                     m.sigma_h_m or 1.5, ep), m.t_s)
+            emit(
+                "gps",
+                lambda q, m=m, ep=ep: GpsFix(q, m.lat_deg, m.lon_deg, m.alt_m, 1, 12, m.sigma_h_m or 1.5, ep),
+                m.t_s,
+            )
     end = run.measurements[-1].t_s + 0.01
     emit("ctl", lambda q: Stop(q), end)
     out.sort(key=lambda r: r[0])

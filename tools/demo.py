@@ -18,10 +18,15 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--scenario", default=DEFAULT_SCENARIO, help=f"shipped scenario (default {DEFAULT_SCENARIO})"
     )
-    parser.add_argument("--duration", type=float, default=240.0,
-                        help="simulated seconds of the scenario to run (default 240)")
-    parser.add_argument("--speed", type=float, default=4.0,
-                        help="simulated seconds per wall second (default 4: about a minute of wall time)")
+    parser.add_argument(
+        "--duration", type=float, default=240.0, help="simulated seconds of the scenario to run (default 240)"
+    )
+    parser.add_argument(
+        "--speed",
+        type=float,
+        default=4.0,
+        help="simulated seconds per wall second (default 4: about a minute of wall time)",
+    )
     parser.add_argument("--seed", type=int, help="seed of the sensor errors (default: the scenario's)")
     parser.add_argument("--out", default="demo-out", help="directory for the report (default ./demo-out)")
     parser.add_argument("--quiet", action="store_true", help="no live display")

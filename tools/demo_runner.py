@@ -119,8 +119,11 @@ def run_demo(opts: DemoOptions) -> int:
     out.mkdir(parents=True, exist_ok=True)
     sc = load_scenario(opts.scenario)
     print(f"sfa demo: scenario {sc.name!r}: {sc.description}", flush=True)
-    print(f"  truth: generating {opts.duration_s:.0f} s of simulated run (seed "
-          f"{sc.seed if opts.seed is None else opts.seed}) ...", flush=True)
+    print(
+        f"  truth: generating {opts.duration_s:.0f} s of simulated run (seed "
+        f"{sc.seed if opts.seed is None else opts.seed}) ...",
+        flush=True,
+    )
     sim = generate(sc, seed=opts.seed, max_duration_s=opts.duration_s)
     truth_t = np.asarray(sim.truth["epoch"], dtype=float)
     truth_s = np.asarray(sim.truth["arc_length"], dtype=float)
@@ -134,41 +137,79 @@ def run_demo(opts: DemoOptions) -> int:
     try:
         obcu = subprocess.Popen(
             _sfa("obcu", "--port", str(obcu_port), "--csv", str(obcu_csv), "--quiet", "--idle-exit", "5"),
-            stderr=subprocess.PIPE, stdout=subprocess.DEVNULL, text=True, env=env,
+            stderr=subprocess.PIPE,
+            stdout=subprocess.DEVNULL,
+            text=True,
+            env=env,
         )
         procs.append(obcu)
         obcu_log = _LineReader(obcu.stderr, out / "obcu.log")
         obcu_log.start()
         listener = subprocess.Popen(
-            _sfa("listen", "--bind", "127.0.0.1", "--port", str(listen_port),
-                 "--obcu", f"127.0.0.1:{obcu_port}",
-                 "--set", "log.metrics_interval_s=1", "--set", "link.extended=true",
-                 "--set", f'filter.imu="{sc.imu.preset}"', "--set", f'filter.odometer="{sc.odometer.preset}"',
-                 "--set", f'filter.gps="{sc.gps.preset}"'),
-            stderr=subprocess.PIPE, stdout=subprocess.DEVNULL, text=True, env=env,
+            _sfa(
+                "listen",
+                "--bind",
+                "127.0.0.1",
+                "--port",
+                str(listen_port),
+                "--obcu",
+                f"127.0.0.1:{obcu_port}",
+                "--set",
+                "log.metrics_interval_s=1",
+                "--set",
+                "link.extended=true",
+                "--set",
+                f'filter.imu="{sc.imu.preset}"',
+                "--set",
+                f'filter.odometer="{sc.odometer.preset}"',
+                "--set",
+                f'filter.gps="{sc.gps.preset}"',
+            ),
+            stderr=subprocess.PIPE,
+            stdout=subprocess.DEVNULL,
+            text=True,
+            env=env,
         )
         procs.append(listener)
         lst_log = _LineReader(listener.stderr, out / "listener.log")
         lst_log.start()
-        print(f"  listener on 127.0.0.1:{listen_port}, mock OBCU on 127.0.0.1:{obcu_port}; "
-              "waiting for READY (first run compiles the filter) ...", flush=True)
+        print(
+            f"  listener on 127.0.0.1:{listen_port}, mock OBCU on 127.0.0.1:{obcu_port}; "
+            "waiting for READY (first run compiles the filter) ...",
+            flush=True,
+        )
         t_wait = time.monotonic()
         while not lst_log.ready.wait(0.2):
             if listener.poll() is not None:
-                raise ToolError(f"the listener exited with status {listener.returncode} before READY "
-                                f"(see {out / 'listener.log'})")
+                raise ToolError(
+                    f"the listener exited with status {listener.returncode} before READY "
+                    f"(see {out / 'listener.log'})"
+                )
             if time.monotonic() - t_wait > READY_TIMEOUT_S:
                 raise ToolError(f"the listener was not ready after {READY_TIMEOUT_S:.0f} s")
         seed_args = [] if opts.seed is None else ["--seed", str(opts.seed)]
         simp = subprocess.Popen(
-            _sfa("sim", sc.source or opts.scenario, "--live", "--target", f"127.0.0.1:{listen_port}",
-                 "--speed", str(opts.speed), "--duration", str(opts.duration_s), *seed_args),
-            stdout=subprocess.DEVNULL, stderr=open(out / "sim.log", "w"), env=env,  # noqa: SIM115
+            _sfa(
+                "sim",
+                sc.source or opts.scenario,
+                "--live",
+                "--target",
+                f"127.0.0.1:{listen_port}",
+                "--speed",
+                str(opts.speed),
+                "--duration",
+                str(opts.duration_s),
+                *seed_args,
+            ),
+            stdout=subprocess.DEVNULL,
+            stderr=open(out / "sim.log", "w"),
+            env=env,  # noqa: SIM115
         )
         procs.append(simp)
         wall_budget = opts.duration_s / opts.speed + 60.0
         t0 = time.monotonic()
         last_print = 0.0
+        shown = 0
         while True:
             time.sleep(0.25)
             done = listener.poll() is not None
@@ -178,13 +219,16 @@ def run_demo(opts: DemoOptions) -> int:
             if opts.live_display and (now - last_print >= 1.0 or done):
                 last_print = now
                 est = _read_obcu_csv(obcu_csv)
-                if est["epoch"].size:
+                if est["epoch"].size and est["epoch"].size != shown:
+                    shown = est["epoch"].size
                     e_t, e_s = est["epoch"][-1], est["arc_length"][-1]
                     err = float(e_s - np.interp(e_t, truth_t, truth_s))
                     v = est["speed"][-1]
-                    print(f"  t={e_t - truth_t[0]:7.1f} s  s={e_s:9.1f} m  v={v * 3.6:5.1f} km/h  "
-                          f"error={err:+6.2f} m  outputs={est['epoch'].size:6d}  link={lst_log.link_state}",
-                          flush=True)
+                    print(
+                        f"  t={e_t - truth_t[0]:7.1f} s  s={e_s:9.1f} m  v={v * 3.6:5.1f} km/h  "
+                        f"error={err:+6.2f} m  outputs={est['epoch'].size:6d}  link={lst_log.link_state}",
+                        flush=True,
+                    )
             if done:
                 break
         simp.wait(timeout=30.0)
@@ -214,16 +258,22 @@ def run_demo(opts: DemoOptions) -> int:
     (out / "summary.json").write_text(json.dumps(summary, indent=2, default=str))
     report = _write_report(out, sc.name, est, err, truth_t, truth_v, acc, metrics)
     print()
-    print(f"sfa demo: {sc.name}, {summary['simulated_s']:.0f} s simulated, "
-          f"{summary['distance_m']:.0f} m travelled, {acc.n} estimates received by the OBCU")
+    print(
+        f"sfa demo: {sc.name}, {summary['simulated_s']:.0f} s simulated, "
+        f"{summary['distance_m']:.0f} m travelled, {acc.n} estimates received by the OBCU"
+    )
     cov = "n/a" if acc.coverage is None else f"{100 * acc.coverage:.1f} %"
-    print(f"  along-track error: rms {acc.rms_m:.2f} m, p95 {acc.p95_m:.2f} m, max {acc.max_m:.2f} m; "
-          f"95 % interval contains truth {cov}")
+    print(
+        f"  along-track error: rms {acc.rms_m:.2f} m, p95 {acc.p95_m:.2f} m, max {acc.max_m:.2f} m; "
+        f"95 % interval contains truth {cov}"
+    )
     link = metrics.get("link", {})
     inp = metrics.get("input", {})
-    print(f"  listener: {inp.get('received', '?')} datagrams received, {inp.get('rejected', 0)} rejected, "
-          f"{link.get('outputs', '?')} outputs, {link.get('acks', '?')} acks, link {link.get('state', '?')}, "
-          f"exit status {listener_rc}")
+    print(
+        f"  listener: {inp.get('received', '?')} datagrams received, {inp.get('rejected', 0)} rejected, "
+        f"{link.get('outputs', '?')} outputs, {link.get('acks', '?')} acks, link {link.get('state', '?')}, "
+        f"exit status {listener_rc}"
+    )
     print(f"  report: {report}")
     return 0 if listener_rc == 0 else 1
 
