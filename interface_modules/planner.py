@@ -55,7 +55,7 @@ class LegPlan:
         return float(self.x_m[-1])
 
 
-def accel_distance_table(spec: TrainSpec, v_top_mps: float, n: int = 400) -> tuple[np.ndarray, np.ndarray]:
+def accel_distance_table(spec: TrainSpec, v_top_mps: float, n: int = 2000) -> tuple[np.ndarray, np.ndarray]:
     """Tabulate ``Phi(v)``: distance [m] to accelerate from rest to ``v`` [m/s] under the planning law.
 
     The planning acceleration is ``min(plan_accel, 0.9 * traction envelope on level track)``, floored

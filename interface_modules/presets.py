@@ -107,6 +107,22 @@ IMU_PRESETS: dict[str, ImuSpec] = {
     ),
 }
 
+#: error-free sensors (tests, debugging, the "integrate the IMU back to the truth" check)
+IMU_PRESETS["ideal"] = ImuSpec(
+    rate_hz=100.0,
+    accel_noise_density=0.0,
+    accel_bias_sigma=0.0,
+    accel_bias_rw=0.0,
+    accel_scale_sigma=0.0,
+    accel_lsb=0.0,
+    gyro_noise_density=0.0,
+    gyro_bias_sigma=0.0,
+    gyro_bias_rw=0.0,
+    gyro_scale_sigma=0.0,
+    gyro_lsb=0.0,
+    misalignment_sigma=0.0,
+)
+
 ODOMETER_PRESETS: dict[str, OdometerSpec] = {
     "wheel-odometer": OdometerSpec(
         rate_hz=20.0,
@@ -132,6 +148,15 @@ ODOMETER_PRESETS: dict[str, OdometerSpec] = {
         dropout_prob=1e-3,
     ),
 }
+
+ODOMETER_PRESETS["ideal"] = OdometerSpec(
+    rate_hz=20.0,
+    sigma_floor_mps=0.0,
+    sigma_fraction=0.0,
+    scale_sigma=0.0,
+    lsb_mps=0.0,
+    slip_prone=False,
+)
 
 GPS_PRESETS: dict[str, GpsSpec] = {
     "standalone": GpsSpec(
@@ -165,3 +190,15 @@ GPS_PRESETS: dict[str, GpsSpec] = {
         num_sv_mean=20,
     ),
 }
+#: error-free GNSS (the reported sigma_h must be > 0 on the wire: 1 mm)
+GPS_PRESETS["ideal"] = GpsSpec(
+    rate_hz=1.0,
+    white_sigma_m=0.0,
+    gm_sigma_m=0.0,
+    gm_tau_s=60.0,
+    vertical_sigma_m=0.0,
+    reported_sigma_h_m=0.001,
+    fix_quality=4,
+    num_sv_mean=20,
+    num_sv_sigma=0.0,
+)

@@ -3,7 +3,8 @@
 ``speed = v (1 + scale) (1 + slip(t)) + N(0, sigma(v)^2)``, quantised to the LSB, with
 ``sigma(v) = sqrt(sigma_floor^2 + (sigma_fraction v)^2)``; ``scale ~ N(0, scale_sigma)`` is drawn once.
 The datagram's sigma is what the sensor can know: ``sigma(|speed reading|)`` (it does not know
-about slip). A wheel sensor (``slip_prone``) reads exactly 0 at standstill (no tachometer pulses).
+about slip), at least ``MIN_REPORTED_SIGMA_MPS``. A wheel sensor (``slip_prone``) reads exactly 0
+at standstill (no tachometer pulses).
 
 Slip/slide (``slip(t)``): configured ``odo_slip`` episodes plus, for wheel sensors, spontaneous
 episodes: a Poisson process of rate ``slip_rate_per_h``; a candidate starting while the train
@@ -25,6 +26,8 @@ from .stream import SampleStream
 
 #: acceleration beyond which a spontaneous slip/slide episode can start [m/s^2]
 SLIP_ACCEL_THRESHOLD_MPS2 = 0.3
+#: smallest sigma a datagram carries (the wire requires sigma > 0; matters only for error-free presets) [m/s]
+MIN_REPORTED_SIGMA_MPS = 0.001
 #: ramp time of slip/slide episodes [s]
 SLIP_RAMP_S = 0.5
 
@@ -88,7 +91,7 @@ def simulate_odometer(
     stuck = [fl for fl in faults if fl.kind == "stuck"]
     if stuck:
         speed = speed[stuck_indices(t, stuck)]
-    values = {"speed": speed, "sigma": sigma_mps(spec, speed)}
+    values = {"speed": speed, "sigma": np.maximum(sigma_mps(spec, speed), MIN_REPORTED_SIGMA_MPS)}
     truth = {"speed": v, "accel": a, "slip": slip, "scale": np.array([scale])}
     for t_drop in t[dropped][:1000]:
         events.append((float(t_drop), "odo_dropout", ""))
