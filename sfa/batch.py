@@ -103,7 +103,7 @@ def pack(measurements, track) -> Packed:
 
 
 @njit(cache=True)
-def run_packed(kind, t, vals, x, P, aux, cnt, cfg, ts, te, tn, tg, tk, out_f, out_i):
+def run_packed(kind, t, vals, x, P, aux, cnt, mem, cfg, ts, te, tn, tg, tk, out_f, out_i):
     """Step through packed measurements; out_f (n, 4): epoch, s, v, sigma_s; out_i (n, 3): outcome,
     status, reason bits."""
     n = kind.shape[0]
@@ -112,14 +112,14 @@ def run_packed(kind, t, vals, x, P, aux, cnt, cfg, ts, te, tn, tg, tk, out_f, ou
         ti = t[i]
         v = vals[i]
         if k == 1:
-            o = K.step_imu(x, P, aux, cnt, cfg, ts, tg, tk, ti, v[0], v[1], v[2], v[3], v[4], v[5])
+            o = K.step_imu(x, P, aux, cnt, mem, cfg, ts, tg, tk, ti, v[0], v[1], v[2], v[3], v[4], v[5])
         elif k == 2:
-            o = K.step_odo(x, P, aux, cnt, cfg, ts, tg, ti, v[0], v[1])
+            o = K.step_odo(x, P, aux, cnt, mem, cfg, ts, tg, ti, v[0], v[1])
         elif k == 3:
             fq = -1 if not math.isfinite(v[3]) else int(v[3])
             o = K.step_gps(x, P, aux, cnt, cfg, ts, te, tn, tg, ti, v[0], v[1], v[2], fq)
         elif k == 8:
-            o = K.step_init(x, P, aux, cnt, cfg, ts, tg, ti, v[0], v[1], v[3])
+            o = K.step_init(x, P, aux, cnt, mem, cfg, ts, tg, ti, v[0], v[1], v[3])
         else:
             o = K.O_INVALID
         st, bits, sig = K.status_of(x, P, aux, cfg, aux[L.A_T_STATE])
@@ -153,7 +153,8 @@ def replay(track, config: FilterConfig, measurements=None, packed: Packed | None
     cnt = np.zeros(L.NCNT, dtype=np.int64)
     out_f = np.zeros((n, 4))
     out_i = np.zeros((n, 3), dtype=np.int64)
-    run_packed(packed.kind, packed.t_s, packed.values, x, P, aux, cnt, cfg, line.s_m, line.east_m,
+    mem = np.zeros(L.NMEM)
+    run_packed(packed.kind, packed.t_s, packed.values, x, P, aux, cnt, mem, cfg, line.s_m, line.east_m,
                line.north_m, line.grade, line.curvature_inv_m, out_f, out_i)
     return BatchResult(out_i[:, 0], out_f[:, 0], out_f[:, 1], out_f[:, 2], out_f[:, 3], out_i[:, 1],
                        out_i[:, 2], cnt, x, P)
@@ -172,5 +173,5 @@ def warm_up_batch(cfg: np.ndarray) -> None:
     vals[3, 2] = math.nan
     vals[3, 3] = 1.0
     run_packed(kind, t, vals, np.zeros(L.NX), np.zeros((L.NX, L.NX)), np.zeros(L.NAUX),
-               np.zeros(L.NCNT, dtype=np.int64), cfg, ts, ts.copy(), z, z, z, np.zeros((4, 4)),
-               np.zeros((4, 3), dtype=np.int64))
+               np.zeros(L.NCNT, dtype=np.int64), np.zeros(L.NMEM), cfg, ts, ts.copy(), z, z, z,
+               np.zeros((4, 4)), np.zeros((4, 3), dtype=np.int64))

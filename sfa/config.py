@@ -23,6 +23,8 @@ class FilterConfig:
     accel_model_noise_mps2_rthz: float = 0.05  #: unmodelled acceleration [m/s^2/sqrt(Hz)]
     accel_bias_rw_mps2_rts: float = 2.0e-4  #: accelerometer bias random walk [m/s^2/sqrt(s)]
     init_sigma_accel_bias_mps2: float = 0.088  #: initial bias sigma incl. pitch misalignment [m/s^2]
+    init_sigma_yaw_misalignment_rad: float = 0.0087  #: initial IMU yaw misalignment sigma [rad]
+    init_sigma_accel_scale: float = 0.002  #: initial accelerometer scale-factor sigma [-]
     no_imu_accel_psd_m2ps3: float = 0.5  #: acceleration PSD while the IMU is timed out [m^2/s^3]
     gravity_mps2: float = 9.80665  #: gravity [m/s^2]
     max_predict_dt_s: float = 0.1  #: longest single prediction step [s]
@@ -58,6 +60,8 @@ class FilterConfig:
     slip_confirm_n: int = 3  #: consecutive gated odometer samples that declare a slip [samples]
     slip_release_n: int = 10  #: consecutive in-gate samples that end it [samples]
     slip_max_s: float = 20.0  #: longest slip before the odometer is trusted again [s]
+    slip_rewind: bool = True  #: on a declared slip, rewind ~1-2 s and re-propagate with the IMU alone
+    snapshot_period_s: float = 1.0  #: period of the rewind snapshots [s]
     # --- GNSS step / ramp
     step_min_m: float = 5.0  #: smallest gated GNSS innovation classified as a step [m]
     cusum_k_sigma: float = 0.5  #: CUSUM drift allowance [sigma of the along-track innovation]
@@ -183,4 +187,7 @@ class FilterConfig:
         c[L.K_INIT_SIGMA_BG] = self.init_sigma_gyro_bias_radps
         c[L.K_LATE_TOL] = self.late_tolerance_s
         c[L.K_GPS_MAX_LOGLIK_NIS] = self.loglik_nis_cap
+        c[L.K_SNAP_PERIOD] = self.snapshot_period_s if self.slip_rewind else -1.0
+        c[L.K_INIT_SIGMA_MY] = self.init_sigma_yaw_misalignment_rad
+        c[L.K_INIT_SIGMA_SF] = self.init_sigma_accel_scale
         return c

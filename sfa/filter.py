@@ -62,6 +62,11 @@ class _Hypothesis:
     aux: np.ndarray = field(default_factory=lambda: np.zeros(L.NAUX))
     cnt: np.ndarray = field(default_factory=lambda: np.zeros(L.NCNT, dtype=np.int64))
     spawned: frozenset = frozenset()  #: junction keys this lineage already branched at
+    mem: np.ndarray = field(default_factory=lambda: np.zeros(L.NMEM))  #: rewind snapshots and IMU ring
+
+    def clone(self, line: TrackArrays | None = None, spawned: frozenset | None = None) -> _Hypothesis:
+        return _Hypothesis(self.line if line is None else line, self.x.copy(), self.P.copy(), self.aux.copy(),
+                           self.cnt.copy(), self.spawned if spawned is None else spawned, self.mem.copy())
 
     @property
     def direction(self) -> int:
@@ -70,8 +75,9 @@ class _Hypothesis:
     def copy_to(self, line: TrackArrays, s_m: float, keys: frozenset, flip: bool = False) -> _Hypothesis:
         """A copy on ``line`` at ``s_m``; ``flip`` when arc length runs the other way there (s and v
         change sign, and so do their covariance rows/columns)."""
-        h = _Hypothesis(line, self.x.copy(), self.P.copy(), self.aux.copy(), self.cnt.copy(), keys)
+        h = self.clone(line, keys)
         h.x[L.S] = s_m
+        h.mem[:] = 0.0  # snapshots are on the other line: not reusable
         if flip:
             h.x[L.V] = -h.x[L.V]
             h.aux[L.A_DIR] = -h.aux[L.A_DIR]
@@ -82,8 +88,8 @@ class _Hypothesis:
 
     def mirrored(self) -> _Hypothesis:
         """Same place, opposite sense of travel (the train may reverse while standing)."""
-        h = _Hypothesis(self.line, self.x.copy(), self.P.copy(), self.aux.copy(), self.cnt.copy(),
-                        self.spawned)
+        h = self.clone()
+        h.mem[:] = 0.0
         h.x[L.V] = -h.x[L.V]
         h.aux[L.A_DIR] = -h.aux[L.A_DIR]
         h.P[L.V, :] = -h.P[L.V, :]
@@ -138,11 +144,12 @@ class TrackFilter:
         line = TrackArrays(0, 100.0, np.array([0.0, 100.0]), np.array([0.0, 100.0]), np.zeros(2),
                            np.zeros(2), np.zeros(2))
         h = _Hypothesis(line)
-        a = (h.x, h.P, h.aux, h.cnt, self._cfg)
+        a = (h.x, h.P, h.aux, h.cnt, h.mem, self._cfg)
         K.step_init(*a, line.s_m, line.grade, 0.0, 1.0, 1.0, 1.0)
         K.step_imu(*a, line.s_m, line.grade, line.curvature_inv_m, 0.01, 0.0, 0.0, -9.8, 0.0, 0.0, 0.0)
         K.step_odo(*a, line.s_m, line.grade, 0.05, 1.0, 0.05)
-        K.step_gps(*a, line.s_m, line.east_m, line.north_m, line.grade, 1.0, 1.0, 0.0, 1.5, 1)
+        K.step_gps(h.x, h.P, h.aux, h.cnt, self._cfg, line.s_m, line.east_m, line.north_m, line.grade,
+                   1.0, 1.0, 0.0, 1.5, 1)
         K.status_of(h.x, h.P, h.aux, self._cfg, 1.0)
         warm_up_batch(self._cfg)
 
@@ -244,10 +251,10 @@ class TrackFilter:
         for d in directions:
             if self._hyps:
                 base = self._hyps[self._reported]
-                h = _Hypothesis(line, base.x.copy(), base.P.copy(), base.aux.copy(), base.cnt.copy())
+                h = base.clone(line, frozenset())
             else:
                 h = _Hypothesis(line)
-            code = K.step_init(h.x, h.P, h.aux, h.cnt, self._cfg, line.s_m, line.grade, t, s, v, d)
+            code = K.step_init(h.x, h.P, h.aux, h.cnt, h.mem, self._cfg, line.s_m, line.grade, t, s, v, d)
             if code != K.O_INITIALISED:
                 break
             new.append(h)
@@ -268,7 +275,7 @@ class TrackFilter:
             return Update("imu", t, Outcome.NOT_INITIALISED)
         code = K.O_INVALID
         for i, h in enumerate(self._hyps):
-            c = K.step_imu(h.x, h.P, h.aux, h.cnt, self._cfg, h.line.s_m, h.line.grade,
+            c = K.step_imu(h.x, h.P, h.aux, h.cnt, h.mem, self._cfg, h.line.s_m, h.line.grade,
                            h.line.curvature_inv_m, t, fx, fy, fz, wx, wy, wz)
             if i == self._reported:
                 code = c
@@ -282,11 +289,15 @@ class TrackFilter:
         if not self._hyps:
             return Update("odo", t, Outcome.NOT_INITIALISED)
         code = K.O_INVALID
+        accepted_by_any = False
         for i, h in enumerate(self._hyps):
-            c = K.step_odo(h.x, h.P, h.aux, h.cnt, self._cfg, h.line.s_m, h.line.grade, t, v, sg)
+            c = K.step_odo(h.x, h.P, h.aux, h.cnt, h.mem, self._cfg, h.line.s_m, h.line.grade, t, v, sg)
+            accepted_by_any |= c == K.O_ACCEPTED
             if i == self._reported:
                 code = c
         nis = float(self._hyps[self._reported].aux[L.A_LAST_NIS_ODO])
+        if len(self._hyps) > 1 and accepted_by_any:
+            self._score(L.A_LAST_NIS_ODO)
         if self._hyps[self._reported].aux[L.A_STILL] != 0.0 and self._config.reversal_hypotheses:
             self._spawn_reversals()
         if self._junction_map() and code == K.O_ACCEPTED:
@@ -319,15 +330,19 @@ class TrackFilter:
                 code = c
         nis = float(self._hyps[self._reported].aux[L.A_LAST_NIS_GPS])
         if len(self._hyps) > 1 and accepted_by_any:
-            # hypothesis score: robust GNSS log-likelihood -NIS/2 (capped), only from fixes that at least
-            # one hypothesis accepted (a fix every hypothesis rejects is a GNSS fault, not evidence)
-            cap = self._config.loglik_nis_cap
-            for h in self._hyps:
-                h.aux[L.A_LOGLIK] -= 0.5 * min(float(h.aux[L.A_LAST_NIS_GPS]), cap)
-            self._prune()
+            self._score(L.A_LAST_NIS_GPS)
         if self._junction_map():
             self._spawn_branches()
         return Update("gps", t, Outcome(code), nis)
+
+    def _score(self, nis_slot: int) -> None:
+        """Hypothesis score: robust log-likelihood -NIS/2 (capped) of GNSS fixes and odometer samples
+        that at least one hypothesis accepted (a measurement every hypothesis rejects is a sensor
+        fault, not evidence for one of them); then prune."""
+        cap = self._config.loglik_nis_cap
+        for h in self._hyps:
+            h.aux[L.A_LOGLIK] -= 0.5 * min(float(h.aux[nis_slot]), cap)
+        self._prune()
 
     def _invalid(self, kind: str, m, counter: int) -> Update:
         self._count_all(counter, 1)

@@ -26,6 +26,7 @@ from sfa.layout import (
     A_FX,
     A_FX_MEAN,
     A_FX_VAR,
+    A_FY,
     A_GPS_E,
     A_GPS_HOLD,
     A_GPS_N,
@@ -81,6 +82,7 @@ from sfa.layout import (
     C_ODO_TIMEOUT,
     C_RAMP,
     C_SLIP,
+    C_SLIP_REWIND,
     C_STEP,
     C_ZUPT,
     GE,
@@ -107,7 +109,9 @@ from sfa.layout import (
     K_INIT_SIGMA_BA,
     K_INIT_SIGMA_BG,
     K_INIT_SIGMA_KO,
+    K_INIT_SIGMA_MY,
     K_INIT_SIGMA_S,
+    K_INIT_SIGMA_SF,
     K_INIT_SIGMA_V,
     K_LATE_TOL,
     K_LOST_SIGMA,
@@ -126,6 +130,7 @@ from sfa.layout import (
     K_SLIP_CONFIRM_N,
     K_SLIP_MAX_S,
     K_SLIP_RELEASE_N,
+    K_SNAP_PERIOD,
     K_STEP_MIN_M,
     K_STILL_FX_STD,
     K_STILL_SPEED,
@@ -133,6 +138,14 @@ from sfa.layout import (
     K_USE_GYRO,
     K_ZUPT_SIGMA,
     KO,
+    MEM_A,
+    MEM_B,
+    MEM_H0,
+    MEM_HH,
+    MEM_HN,
+    MEM_T_ROT,
+    MY,
+    NH,
     NX,
     R_GNSS_RAMP,
     R_GNSS_REJECTING,
@@ -146,6 +159,8 @@ from sfa.layout import (
     R_SIGMA_LOST,
     R_SLIP,
     R_STANDSTILL,
+    SF,
+    SNAP,
     S,
     V,
 )
@@ -275,8 +290,11 @@ def _predict_step(x, P, aux, cfg, ts, tg, h, imu_ok):
     grade = interp_at(ts, tg, x[S])
     sin_th = grade / math.sqrt(1.0 + grade * grade)  # grade = tan(theta)
     d = aux[A_DIR]
+    fx = aux[A_FX]
+    fy = aux[A_FY]
     if imu_ok:
-        a = d * (aux[A_FX] - x[BA]) - g * sin_th  # dv/dt = d (f_x - b_a) - g sin(theta)
+        # dv/dt = d (f_x - b_a - m_y f_y - s_f f_x) - g sin(theta)
+        a = d * (fx - x[BA] - x[MY] * fy - x[SF] * fx) - g * sin_th
         q = cfg[K_Q_ACC]
     else:
         a = 0.0  # no IMU: constant-velocity model with a wider acceleration noise
@@ -294,6 +312,10 @@ def _predict_step(x, P, aux, cfg, ts, tg, h, imu_ok):
     if imu_ok:
         F[S, BA] = -0.5 * d * h * h
         F[V, BA] = -d * h
+        F[S, MY] = -0.5 * d * h * h * fy
+        F[V, MY] = -d * h * fy
+        F[S, SF] = -0.5 * d * h * h * fx
+        F[V, SF] = -d * h * fx
     F[GE, GE] = phi
     F[GN, GN] = phi
     # P = F P F' + Q
@@ -438,7 +460,7 @@ def status_of(x, P, aux, cfg, t):
 
 # ============================================================== initialisation (GROUND TRUTH)
 @njit(cache=True)
-def step_init(x, P, aux, cnt, cfg, ts, tg, t, s, v, direction):
+def step_init(x, P, aux, cnt, mem, cfg, ts, tg, t, s, v, direction):
     """(Re)initialise arc length and speed at time t. v is the speed in the train's forward direction
     (GROUND TRUTH's vx), direction +1 when forward is increasing arc length, -1 otherwise.
 
@@ -456,6 +478,8 @@ def step_init(x, P, aux, cnt, cfg, ts, tg, t, s, v, direction):
         P[GE, GE] = cfg[K_GM_SIGMA] ** 2
         P[GN, GN] = cfg[K_GM_SIGMA] ** 2
         P[BG, BG] = cfg[K_INIT_SIGMA_BG] ** 2
+        P[MY, MY] = cfg[K_INIT_SIGMA_MY] ** 2
+        P[SF, SF] = cfg[K_INIT_SIGMA_SF] ** 2
     for i in range(NX):
         P[S, i] = 0.0
         P[i, S] = 0.0
@@ -469,6 +493,7 @@ def step_init(x, P, aux, cnt, cfg, ts, tg, t, s, v, direction):
     grade = interp_at(ts, tg, s)
     # until the first IMU sample the held force keeps the speed constant: f_x = b_a + d g sin(theta)
     aux[A_FX] = x[BA] + direction * cfg[K_GRAVITY] * grade / math.sqrt(1.0 + grade * grade)
+    aux[A_FY] = 0.0
     aux[A_T_STATE] = t
     aux[A_T_IMU] = t
     aux[A_T_ODO] = t
@@ -488,14 +513,106 @@ def step_init(x, P, aux, cnt, cfg, ts, tg, t, s, v, direction):
     aux[A_IMU_TO] = 0.0
     aux[A_ODO_TO] = 0.0
     aux[A_GPS_TO] = 0.0
+    mem_reset(mem)
     cnt[C_INIT] += 1
     condition_cov(P, cfg, cnt)
     return O_INITIALISED
 
 
+# ============================================================== rewind memory (slip onset)
+@njit(cache=True)
+def mem_reset(mem):
+    """Forget snapshots and IMU history (at (re)initialisation)."""
+    mem[:] = 0.0
+    mem[MEM_T_ROT] = -math.inf
+
+
+@njit(cache=True)
+def _mem_save(x, P, aux, mem, off):
+    mem[off:off + NX] = x
+    k = off + NX
+    for i in range(NX):
+        for j in range(NX):
+            mem[k] = P[i, j]
+            k += 1
+    mem[k] = aux[A_T_STATE]
+    mem[k + 1] = aux[A_FX]
+    mem[k + 2] = aux[A_FY]
+    mem[k + 3] = 1.0
+
+
+@njit(cache=True)
+def _mem_push_imu(mem, t, fx, fy):
+    n = int(mem[MEM_HN])
+    head = int(mem[MEM_HH])
+    if n < NH:
+        i = (head + n) % NH
+        mem[MEM_HN] = n + 1
+    else:
+        i = head
+        mem[MEM_HH] = (head + 1) % NH
+    mem[MEM_H0 + 3 * i] = t
+    mem[MEM_H0 + 3 * i + 1] = fx
+    mem[MEM_H0 + 3 * i + 2] = fy
+
+
+@njit(cache=True)
+def mem_rotate(x, P, aux, mem, cfg, t):
+    """Every snapshot period (while the odometer is clean): older <- newer <- current state."""
+    if cfg[K_SNAP_PERIOD] <= 0.0 or t - mem[MEM_T_ROT] < cfg[K_SNAP_PERIOD]:
+        return
+    mem[MEM_A:MEM_A + SNAP] = mem[MEM_B:MEM_B + SNAP]
+    _mem_save(x, P, aux, mem, MEM_B)
+    mem[MEM_T_ROT] = t
+
+
+@njit(cache=True)
+def rewind_imu_only(x, P, aux, cnt, cfg, ts, tg, mem):
+    """Restore the older snapshot and re-propagate to the current time with the IMU alone.
+
+    Returns False (and changes nothing) when there is no snapshot or the IMU ring does not reach back
+    to it."""
+    if cfg[K_SNAP_PERIOD] <= 0.0 or mem[MEM_A + SNAP - 1] != 1.0:
+        return False
+    k = MEM_A + NX + NX * NX
+    t_snap = mem[k]
+    n = int(mem[MEM_HN])
+    head = int(mem[MEM_HH])
+    if n == 0 or mem[MEM_H0 + 3 * head] > t_snap + 0.05:
+        return False
+    t_now = aux[A_T_STATE]
+    fx_now = aux[A_FX]
+    fy_now = aux[A_FY]
+    x[:] = mem[MEM_A:MEM_A + NX]
+    q = MEM_A + NX
+    for i in range(NX):
+        for j in range(NX):
+            P[i, j] = mem[q]
+            q += 1
+    aux[A_T_STATE] = t_snap
+    aux[A_FX] = mem[k + 1]
+    aux[A_FY] = mem[k + 2]
+    for m in range(n):
+        i = (head + m) % NH
+        ti = mem[MEM_H0 + 3 * i]
+        if ti <= t_snap or ti > t_now:
+            continue
+        predict_to(x, P, aux, cnt, cfg, ts, tg, ti)  # x, P propagated with the held force
+        aux[A_FX] = mem[MEM_H0 + 3 * i + 1]
+        aux[A_FY] = mem[MEM_H0 + 3 * i + 2]
+    predict_to(x, P, aux, cnt, cfg, ts, tg, t_now)
+    aux[A_FX] = fx_now
+    aux[A_FY] = fy_now
+    aux[A_T_STATE] = t_now
+    mem[MEM_A + SNAP - 1] = 0.0  # used: the next rewind needs fresh snapshots
+    mem[MEM_B + SNAP - 1] = 0.0
+    cnt[C_SLIP_REWIND] += 1
+    return True
+
+
 # ============================================================== IMU
 @njit(cache=True)
-def step_imu(x, P, aux, cnt, cfg, ts, tg, tk, t, fx, fy, fz, wx, wy, wz):
+def step_imu(x, P, aux, cnt, mem, cfg, ts, tg, tk, t, fx, fy, fz, wx, wy, wz):
     """IMU sample at t: propagate with the previously held force, then hold this sample's force.
 
     Also updates the standstill detector (EWMA mean/variance of f_x) and, when enabled, applies the
@@ -523,8 +640,10 @@ def step_imu(x, P, aux, cnt, cfg, ts, tg, tk, t, fx, fy, fz, wx, wy, wz):
     aux[A_FX_MEAN] += alpha * d  # EWMA mean
     aux[A_FX_VAR] = (1.0 - alpha) * (aux[A_FX_VAR] + alpha * d * d)  # EWMA variance
     aux[A_FX] = fx
+    aux[A_FY] = fy
     aux[A_GZ] = wz
     aux[A_T_IMU] = t
+    _mem_push_imu(mem, t, fx, fy)
     cnt[C_IMU_OK] += 1
     check_timeouts(aux, cnt, cfg, t)
     if cfg[K_USE_GYRO] != 0.0 and abs(x[V]) >= cfg[K_GYRO_MIN_SPEED]:
@@ -548,7 +667,7 @@ def step_imu(x, P, aux, cnt, cfg, ts, tg, tk, t, fx, fy, fz, wx, wy, wz):
 
 # ============================================================== odometer (+ slip detection, ZUPT)
 @njit(cache=True)
-def step_odo(x, P, aux, cnt, cfg, ts, tg, t, speed, sigma):
+def step_odo(x, P, aux, cnt, mem, cfg, ts, tg, t, speed, sigma):
     """Odometer speed z = d v (1 + k_o) + noise with the sample's own sigma, slip/slide detection
     against the IMU-propagated speed, and a zero-velocity update at detected standstill."""
     if not (math.isfinite(t) and math.isfinite(speed) and math.isfinite(sigma)) or sigma <= 0.0 \
@@ -591,6 +710,8 @@ def step_odo(x, P, aux, cnt, cfg, ts, tg, t, speed, sigma):
             aux[A_SLIP] = 1.0  # slip / slide declared
             aux[A_SLIP_T0] = t
             cnt[C_SLIP] += 1
+            # the onset samples that passed the gate pulled the speed: rewind and use the IMU alone
+            rewind_imu_only(x, P, aux, cnt, cfg, ts, tg, mem)
         elif aux[A_SLIP] != 0.0 and t - aux[A_SLIP_T0] > cfg[K_SLIP_MAX_S]:
             # the odometer has disagreed for too long: trust it again, widening the speed variance
             P[V, V] += y[0] * y[0]
@@ -615,6 +736,8 @@ def step_odo(x, P, aux, cnt, cfg, ts, tg, t, speed, sigma):
             cnt[C_ODO_OK] += 1
             aux[A_T_ODO] = t
             outcome = O_ACCEPTED
+            if aux[A_SLIP] == 0.0 and aux[A_SLIP_BAD] == 0.0 and nis <= cfg[K_GATE_ODO] / 4.0:
+                mem_rotate(x, P, aux, mem, cfg, t)
     if still:
         # zero-velocity pseudo-measurement: z = 0 = v + noise(zupt_sigma)
         H[0, :] = 0.0

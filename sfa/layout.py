@@ -18,10 +18,13 @@ KO = 3  #: odometer scale-factor error: odometer reads v * (1 + KO) [dimensionle
 GE = 4  #: GNSS correlated (first-order Gauss-Markov) error, east [m]
 GN = 5  #: GNSS correlated (first-order Gauss-Markov) error, north [m]
 BG = 6  #: gyro z bias [rad/s] (observed only when the gyro update is enabled)
-NX = 7
+MY = 7  #: IMU yaw misalignment: the forward axis picks up MY * f_y (centripetal force in curves) [rad]
+SF = 8  #: accelerometer forward scale-factor error: f_x reads (1 + SF) times the true force [-]
+NX = 9
 
 STATE_NAMES = (
     "s_m", "v_mps", "accel_bias_mps2", "odo_scale", "gnss_east_m", "gnss_north_m", "gyro_bias_radps",
+    "imu_yaw_misalignment_rad", "accel_scale",
 )
 
 # ---------------------------------------------------------------- auxiliary scalars aux (float64[NAUX])
@@ -58,7 +61,8 @@ A_GPS_N = 29  #: last GNSS fix, local north [m]
 A_REJ_DS = 30  #: along-track residual of the first fix of the current rejection run [m]
 A_REJ_MAXDEV = 31  #: largest change of that residual within the run [m]
 A_DIR = 32  #: sense of travel: +1 the train's forward is increasing arc length, -1 decreasing
-NAUX = 33
+A_FY = 33  #: held lateral specific force from the last IMU sample [m/s^2]
+NAUX = 34
 
 # ---------------------------------------------------------------- counters cnt (int64[NCNT])
 C_IMU_OK = 0
@@ -89,7 +93,8 @@ C_ODO_REANCHOR = 24
 C_GYRO_OK = 25
 C_GYRO_GATED = 26
 C_GPS_LATE_USED = 27
-NCNT = 28
+C_SLIP_REWIND = 28
+NCNT = 29
 
 COUNTER_NAMES = (
     "imu_accepted", "imu_late", "imu_invalid",
@@ -99,9 +104,23 @@ COUNTER_NAMES = (
     "imu_timeouts", "odo_timeouts", "gps_timeouts",
     "initialisations", "covariance_repairs", "not_initialised",
     "gps_held_off", "gps_reacquisitions", "odo_reanchors",
-    "gyro_accepted", "gyro_gated", "gps_late_applied",
+    "gyro_accepted", "gyro_gated", "gps_late_applied", "slip_rewinds",
 )
 assert len(COUNTER_NAMES) == NCNT
+
+# ---------------------------------------------------------------- rewind memory mem (float64[NMEM])
+# Two state snapshots taken about a second apart while the odometer is clean, and a ring of the IMU
+# forward specific force since then: when a slip is declared the state is restored to the older
+# snapshot and re-propagated with the IMU alone (the odometer samples of the slip onset are dropped).
+SNAP = NX + NX * NX + 4  #: one snapshot: x, P (row-major), state time, held f_x, held f_y, valid flag
+MEM_A = 0  #: older snapshot
+MEM_B = SNAP  #: newer snapshot
+MEM_T_ROT = 2 * SNAP  #: time of the last snapshot rotation [s]
+MEM_HN = 2 * SNAP + 1  #: IMU samples in the ring
+MEM_HH = 2 * SNAP + 2  #: index of the oldest ring entry
+MEM_H0 = 2 * SNAP + 3  #: ring start: (t, f_x, f_y) triples
+NH = 512  #: ring capacity [samples] (5.1 s at 100 Hz)
+NMEM = MEM_H0 + 3 * NH
 
 # ---------------------------------------------------------------- configuration vector cfg (float64[NCFG])
 K_Q_ACC = 0  #: accelerometer white noise PSD incl. model noise [m^2/s^3]
@@ -153,7 +172,10 @@ K_INIT_SIGMA_KO = 45  #: [-]
 K_INIT_SIGMA_BG = 46  #: [rad/s]
 K_LATE_TOL = 47  #: measurements older than the state by less than this are treated as simultaneous [s]
 K_GPS_MAX_LOGLIK_NIS = 48  #: NIS cap when scoring hypotheses (robust likelihood) [NIS]
-NCFG = 49
+K_SNAP_PERIOD = 49  #: period of the rewind snapshots [s]
+K_INIT_SIGMA_MY = 50  #: [rad]
+K_INIT_SIGMA_SF = 51  #: [-]
+NCFG = 52
 
 # ---------------------------------------------------------------- measurement kinds and result codes
 M_IMU = 1

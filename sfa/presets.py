@@ -33,16 +33,18 @@ def filter_config_for(
     g = 9.80665
     # a constant pitch misalignment reads as an along-track bias g * sin(misalignment)
     pitch_bias = g * math.sin(imu_spec.misalignment_sigma)
-    # unmodelled along-track acceleration: scale error on ~1 m/s^2 and yaw misalignment leaking
-    # ~2 m/s^2 of centripetal force, both correlated over ~10 s: PSD ~ sigma^2 * 2 tau
-    unmodelled_sigma = math.hypot(imu_spec.accel_scale_sigma * 1.0, imu_spec.misalignment_sigma * 2.0)
-    model_psd = unmodelled_sigma ** 2 * 2.0 * 10.0
+    # unmodelled along-track acceleration once bias, yaw misalignment and scale are states: the
+    # bias random walk between updates, roll/pitch misalignment times vertical-curve forces and
+    # second-order terms, ~0.002 m/s^2 correlated over ~10 s: PSD ~ sigma^2 * 2 tau
+    model_psd = (0.1 * imu_spec.accel_scale_sigma * 10.0) ** 2 * 2.0 * 10.0
     quant = imu_spec.accel_lsb / math.sqrt(12.0) / math.sqrt(imu_spec.rate_hz)
     cfg = FilterConfig(
         accel_noise_density_mps2_rthz=math.hypot(imu_spec.accel_noise_density, quant),
-        accel_model_noise_mps2_rthz=max(math.sqrt(model_psd), 0.01),
+        accel_model_noise_mps2_rthz=max(math.sqrt(model_psd), 0.005),
         accel_bias_rw_mps2_rts=imu_spec.accel_bias_rw,
         init_sigma_accel_bias_mps2=math.hypot(imu_spec.accel_bias_sigma, pitch_bias),
+        init_sigma_yaw_misalignment_rad=imu_spec.misalignment_sigma,
+        init_sigma_accel_scale=imu_spec.accel_scale_sigma,
         gyro_bias_rw_radps_rts=imu_spec.gyro_bias_rw,
         init_sigma_gyro_bias_radps=imu_spec.gyro_bias_sigma,
         init_sigma_odo_scale=odo_spec.scale_sigma,

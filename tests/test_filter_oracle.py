@@ -21,7 +21,7 @@ from sfa.presets import filter_config_for
 from sfa.synthetic import Profile, build_track_db, generate
 from track_db import TrackDatabase
 
-NX = 7
+NX = 9
 
 
 @pytest.fixture(scope="module")
@@ -32,7 +32,7 @@ def db(tmp_path_factory):
 
 
 class Oracle:
-    """The filter's model with FilterPy: x = [s, v, b_a, k_o, e_gnss, n_gnss, b_g]."""
+    """The filter's model with FilterPy: x = [s, v, b_a, k_o, e_gnss, n_gnss, b_g, m_yaw, s_f]."""
 
     def __init__(self, line, cfg, grade_s, grade):
         from scipy.stats import chi2
@@ -42,19 +42,22 @@ class Oracle:
         self.ekf = ExtendedKalmanFilter(dim_x=NX, dim_z=2)
         self.t = None
         self.fx = 0.0
+        self.fy = 0.0
         self.q_acc = cfg.accel_noise_density_mps2_rthz ** 2 + cfg.accel_model_noise_mps2_rthz ** 2
         self.gate_gps = chi2.ppf(cfg.gate_prob_gps, 2)
 
     def init(self, m: InitMeas):
         c = self.cfg
-        self.ekf.x = np.array([[m.arc_length_m, m.speed_mps, 0, 0, 0, 0, 0]], dtype=float).T  # column
+        self.ekf.x = np.array([[m.arc_length_m, m.speed_mps, 0, 0, 0, 0, 0, 0, 0]], dtype=float).T  # column
         self.ekf.P = np.diag([
             c.init_sigma_s_m ** 2, c.init_sigma_v_mps ** 2, c.init_sigma_accel_bias_mps2 ** 2,
             c.init_sigma_odo_scale ** 2, c.gps_gm_sigma_m ** 2, c.gps_gm_sigma_m ** 2,
-            c.init_sigma_gyro_bias_radps ** 2,
+            c.init_sigma_gyro_bias_radps ** 2, c.init_sigma_yaw_misalignment_rad ** 2,
+            c.init_sigma_accel_scale ** 2,
         ])
         g = np.interp(m.arc_length_m, self.grade_s, self.grade)
         self.fx = 9.80665 * g / math.sqrt(1 + g * g)  # until the first IMU: constant speed
+        self.fy = 0.0
         self.t = m.t_s
 
     def predict(self, t):
@@ -64,11 +67,14 @@ class Oracle:
         c = self.cfg
         g = np.interp(self.ekf.x[0, 0], self.grade_s, self.grade)
         u = self.fx - c.gravity_mps2 * g / math.sqrt(1 + g * g)  # f_x - g sin(theta)
+        # (the scale term is linear in the state: -s_f f_x sits in F, like -m_y f_y)
         phi = math.exp(-h / c.gps_gm_tau_s)
         F = np.eye(NX)
         F[0, 1] = h
         F[0, 2] = -0.5 * h * h
         F[1, 2] = -h
+        F[0, 7], F[1, 7] = -0.5 * h * h * self.fy, -h * self.fy  # yaw misalignment picks up f_y
+        F[0, 8], F[1, 8] = -0.5 * h * h * self.fx, -h * self.fx  # accelerometer scale factor
         F[4, 4] = F[5, 5] = phi
         Q = np.zeros((NX, NX))
         Q[0, 0] = self.q_acc * h ** 3 / 3
@@ -79,13 +85,13 @@ class Oracle:
         Q[4, 4] = Q[5, 5] = c.gps_gm_sigma_m ** 2 * (1 - phi * phi)
         Q[6, 6] = c.gyro_bias_rw_radps_rts ** 2 * h
         self.ekf.F, self.ekf.Q = F, Q
-        self.ekf.B = np.array([[0.5 * h * h], [h], [0], [0], [0], [0], [0]])
+        self.ekf.B = np.array([[0.5 * h * h], [h]] + [[0.0]] * (NX - 2))
         self.ekf.predict(u=np.array([[u]]))
         self.t = t
 
     def imu(self, m: ImuMeas):
         self.predict(m.t_s)
-        self.fx = m.f_mps2[0]
+        self.fx, self.fy = m.f_mps2[0], m.f_mps2[1]
 
     def odo(self, m: OdoMeas):
         self.predict(m.t_s)
@@ -93,7 +99,7 @@ class Oracle:
         r = max(m.sigma_mps, c.odo_sigma_min_mps) ** 2 + c.odo_quant_mps ** 2 / 12
 
         def hj(x):
-            return np.array([[0.0, 1 + x[3, 0], 0, x[1, 0], 0, 0, 0]])
+            return np.array([[0.0, 1 + x[3, 0], 0, x[1, 0], 0, 0, 0, 0, 0]])
 
         def hx(x):
             return np.array([[x[1, 0] * (1 + x[3, 0])]])
@@ -112,7 +118,7 @@ class Oracle:
 
         def hj(x):
             de, dn = deriv(x[0, 0])
-            return np.array([[de, 0, 0, 0, 1, 0, 0], [dn, 0, 0, 0, 0, 1, 0]], dtype=float)
+            return np.array([[de, 0, 0, 0, 1, 0, 0, 0, 0], [dn, 0, 0, 0, 0, 1, 0, 0, 0]], dtype=float)
 
         def hx(x):
             e, n = line.point_at(x[0, 0])
