@@ -297,9 +297,6 @@ def validate(sc: Scenario) -> Scenario:
             raise ScenarioError(f"zone {z.name or ''} needs from_m < to_m")
         if z.limit_kmh is not None and z.limit_kmh <= 0:
             raise ScenarioError("speed limits must be > 0 km/h")
-    stops = [p for p in sc.journey if p.kind == "stop"]
-    if len(stops) < 2 or sc.journey[0].kind != "stop" or sc.journey[-1].kind != "stop":
-        raise ScenarioError("journey.points must start and end with a stop and have at least two stops")
     for i, p in enumerate(sc.journey):
         if p.kind not in ("stop", "pass"):
             raise ScenarioError(f"journey.points[{i}].kind must be 'stop' or 'pass'")
@@ -307,6 +304,9 @@ def validate(sc: Scenario) -> Scenario:
             raise ScenarioError(f"journey.points[{i}].dwell_s must be >= 0")
         if p.kind == "pass" and p.departure_s is not None:
             raise ScenarioError(f"journey.points[{i}]: a passing point has no departure (use arrival_s)")
+    stops = [p for p in sc.journey if p.kind == "stop"]
+    if len(stops) < 2 or sc.journey[0].kind != "stop" or sc.journey[-1].kind != "stop":
+        raise ScenarioError("journey.points must start and end with a stop and have at least two stops")
     times = [t for p in sc.journey for t in (p.arrival_s, p.departure_s) if t is not None]
     if any(b < a for a, b in zip(times, times[1:], strict=False)):
         raise ScenarioError("journey times must not decrease along the journey")
