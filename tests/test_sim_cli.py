@@ -71,3 +71,60 @@ def test_list_and_errors(tmp_path):
     assert res.returncode == 2 and "HOST:PORT" in res.stderr
     res = sfa("sim", "tram-urban", "--speed", "0")
     assert res.returncode == 2 and "--speed must be > 0" in res.stderr
+
+
+def test_live_cli_ctrl_c_sends_stop_and_exits_cleanly(tmp_path):
+    import signal
+    import socket
+    import time
+
+    from listener.codec import Stop
+
+    scenario = tmp_path / "s.toml"
+    scenario.write_text(SCENARIO, encoding="utf-8")
+    rx = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    rx.bind(("127.0.0.1", 0))
+    rx.settimeout(0.2)
+    port = rx.getsockname()[1]
+    proc = subprocess.Popen(
+        [
+            sys.executable,
+            "-m",
+            "sfa",
+            "sim",
+            str(scenario),
+            "--live",
+            "--target",
+            f"127.0.0.1:{port}",
+            "--ephemeral-ports",
+        ],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    got: list[bytes] = []
+    try:
+        deadline = time.monotonic() + 30.0
+        while time.monotonic() < deadline and len(got) < 200:  # about 1.5 s of real-time sending
+            try:
+                got.append(rx.recvfrom(2048)[0])
+            except TimeoutError:
+                continue
+        assert len(got) >= 200, "no live datagrams"
+        proc.send_signal(signal.SIGINT)
+        while time.monotonic() < deadline:
+            try:
+                data = rx.recvfrom(2048)[0]
+            except TimeoutError:
+                continue
+            got.append(data)
+            if data[0] == 10:
+                break
+        _, err = proc.communicate(timeout=15.0)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.communicate()
+        rx.close()
+    assert isinstance(decode_input(got[-1]), Stop)
+    assert proc.returncode == 130 and "interrupted, STOP sent" in err
