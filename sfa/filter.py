@@ -7,6 +7,7 @@ It never reads a clock: every time comes with a measurement or as an argument.
 
 from __future__ import annotations
 
+import bisect
 import math
 from dataclasses import dataclass, field
 
@@ -180,7 +181,7 @@ class TrackFilter:
         t_eval = t if at_s is None or not math.isfinite(at_s) else max(t, float(at_s))
         code, bits, sigma = K.status_of(h.x, h.P, h.aux, self._cfg, t_eval)
         s = float(h.x[L.S])
-        lat, lon = self._latlon(h.line.line_id, s)
+        lat, lon = self._latlon(h.line, s)
         pv = float(h.P[L.V, L.V])
         return Estimate(
             epoch_s=t,
@@ -197,7 +198,7 @@ class TrackFilter:
             sigma_v_mps=math.sqrt(pv) if pv > 0 else 0.0,
             confidence=self._config.confidence,
             hypotheses=len(self._hyps),
-            direction=d if not self._direction_ambiguous() else 0,
+            direction=d if len(self._hyps) == 1 or not self._direction_ambiguous() else 0,
         )
 
     def _direction_ambiguous(self) -> bool:
@@ -362,24 +363,30 @@ class TrackFilter:
             self._lines[key] = arr
         return arr
 
-    def _latlon(self, line_id: int, s: float) -> tuple[float, float]:
-        try:
-            lat, lon = self._track.line(line_id).latlon_at(s)
-            return float(lat), float(lon)
-        except self._track_errors:
+    @staticmethod
+    def _latlon(line: TrackArrays, s: float) -> tuple[float, float]:
+        """Latitude/longitude by linear interpolation between points a few metres apart (the geodetic
+        curvature between them is far below a millimetre); NaN off the ends of the line."""
+        if line.lat_deg is None or not line.s_m[0] <= s <= line.s_m[-1]:
             return math.nan, math.nan
+        return (float(K.interp_at(line.s_m, line.lat_deg, s)), float(K.interp_at(line.s_m, line.lon_deg, s)))
 
-    def _junction_map(self) -> dict[int, list[tuple[int, float, int, float]]]:
-        """line_id -> [(junction key, s on this line, other line, s on the other line)], both directions."""
+    def _junction_map(self) -> dict[int, tuple[list[float], list[tuple[int, float, int, float]]]]:
+        """line_id -> (sorted s on this line, [(junction key, s on this line, other line, s on the other
+        line)] in the same order), both directions of every junction."""
         if self._junctions is None:
-            jmap: dict[int, list[tuple[int, float, int, float]]] = {}
+            rows: dict[int, list[tuple[int, float, int, float]]] = {}
             try:
                 junctions = list(self._track.junctions()) if hasattr(self._track, "junctions") else []
             except self._track_errors:
                 junctions = []
             for k, j in enumerate(junctions):
-                jmap.setdefault(int(j.line_a), []).append((k, float(j.s_a_m), int(j.line_b), float(j.s_b_m)))
-                jmap.setdefault(int(j.line_b), []).append((k, float(j.s_b_m), int(j.line_a), float(j.s_a_m)))
+                rows.setdefault(int(j.line_a), []).append((k, float(j.s_a_m), int(j.line_b), float(j.s_b_m)))
+                rows.setdefault(int(j.line_b), []).append((k, float(j.s_b_m), int(j.line_a), float(j.s_a_m)))
+            jmap = {}
+            for line_id, items in rows.items():
+                items.sort(key=lambda r: r[1])
+                jmap[line_id] = ([r[1] for r in items], items)
             self._junctions = jmap
         return self._junctions
 
@@ -405,12 +412,14 @@ class TrackFilter:
         window = self._config.junction_window_m
         new: list[_Hypothesis] = []
         for h in self._hyps:
-            s, v = float(h.x[L.S]), float(h.x[L.V])
-            for key, s_here, other, s_other in jmap.get(h.line.line_id, ()):
+            entry = jmap.get(h.line.line_id)
+            if entry is None:
+                continue
+            s_list, items = entry
+            s = float(h.x[L.S])
+            lo, hi = bisect.bisect_left(s_list, s - window), bisect.bisect_right(s_list, s + window)
+            for key, s_here, other, s_other in items[lo:hi]:
                 if key in h.spawned:
-                    continue
-                ahead = (s_here - s) if v >= 0.0 else (s - s_here)
-                if not -window <= ahead <= window:
                     continue
                 h.spawned = h.spawned | {key}
                 try:

@@ -239,6 +239,13 @@ class FilterStatus(IntEnum):
     LOST = 3  #: the interval is too wide to be useful, or no motion sensor is left
 
 
+_REASONS_CACHE: dict[int, tuple[str, ...]] = {}
+
+
 def reasons_from_bits(bits: int) -> tuple[str, ...]:
     """Short reason strings, in a fixed order, for a reason bit mask."""
-    return tuple(name for bit, name in REASON_NAMES.items() if bits & bit)
+    found = _REASONS_CACHE.get(bits)
+    if found is None:
+        found = tuple(name for bit, name in REASON_NAMES.items() if bits & bit)
+        _REASONS_CACHE[bits] = found
+    return found

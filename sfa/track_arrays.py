@@ -31,6 +31,8 @@ class TrackArrays:
     north_m: np.ndarray  #: local north per vertex [m]
     grade: np.ndarray  #: smoothed dz/ds per vertex [-]
     curvature_inv_m: np.ndarray  #: smoothed signed curvature per vertex (> 0 turning right) [1/m]
+    lat_deg: np.ndarray | None = None  #: WGS84 latitude per point (for reporting) [deg]
+    lon_deg: np.ndarray | None = None  #: WGS84 longitude per point [deg]
 
     @classmethod
     def from_line(cls, line) -> TrackArrays:
@@ -54,8 +56,14 @@ class TrackArrays:
         s = s_all
         grade = _finite(line.grade_at(s))
         curv = _finite(line.curvature_at(s))
+        try:
+            lat, lon = (np.ascontiguousarray(v, dtype=np.float64) for v in line.latlon_at(s))
+        except Exception:  # a line without geodetic support still filters; lat/lon are then NaN
+            lat = lon = None
         return cls(
             line_id=int(line.line_id),
+            lat_deg=lat,
+            lon_deg=lon,
             length_m=float(s[-1]),
             s_m=np.ascontiguousarray(s),
             east_m=np.ascontiguousarray(e),
