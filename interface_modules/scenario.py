@@ -16,7 +16,7 @@ from pathlib import Path
 from typing import Any
 
 from .errors import ScenarioError
-from .faults import Fault
+from .faults import KIND_SENSOR, Fault
 from .presets import GPS_PRESETS, IMU_PRESETS, ODOMETER_PRESETS
 from .trains import KMH, TRAIN_PRESETS, TrainSpec
 
@@ -246,8 +246,6 @@ def scenario_from_dict(data: dict[str, Any], *, source: str = "<dict>", base_dir
     for i, f in enumerate(faults_l):
         if not isinstance(f, dict) or "kind" not in f:
             raise ScenarioError(f"faults[{i}] must be a table with a kind")
-        from .faults import KIND_SENSOR
-
         fdata = {"sensor": KIND_SENSOR.get(str(f["kind"]), ""), **f}
         faults.append(_dataclass_from(Fault, fdata, f"faults[{i}]"))
     scenario = Scenario(
