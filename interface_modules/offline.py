@@ -22,7 +22,7 @@ from .motion import Trajectory, drive
 from .presets import GPS_PRESETS, IMU_PRESETS, ODOMETER_PRESETS
 from .scenario import Scenario, load_scenario, rate_of
 from .sensors.gps import simulate_gps
-from .sensors.imu import simulate_imu
+from .sensors.imu import CantModel, simulate_imu
 from .sensors.odometer import simulate_odometer
 from .sensors.stream import SampleStream
 from .tracks import open_line
@@ -79,6 +79,14 @@ def simulate_truth(sc: Scenario, track, max_duration_s: float | None = None) -> 
     legs = build_legs(sc, track)
     limit = sc.max_duration_s if max_duration_s is None else max_duration_s
     return drive(sc.train, legs, dt_s=1.0 / sc.truth_rate_hz, tail_s=sc.tail_s, max_time_s=limit)
+
+
+def cant_model(sc: Scenario) -> CantModel | None:
+    """The scenario's cant rule (None: no cant); rail spacing from the train's gauge."""
+    if sc.track.cant_design_speed_kmh is None:
+        return None
+    spacing = 1.5 if sc.train.gauge == "standard" else 1.06
+    return CantModel(sc.track.cant_design_speed_kmh / 3.6, sc.track.max_cant_mm / 1000.0, spacing)
 
 
 def scenario_faults(sc: Scenario) -> tuple[Fault, ...]:
@@ -152,6 +160,7 @@ def generate(
             faults_mod.of_sensor(all_faults, "imu"),
             rng_for(seed, "imu"),
             rate,
+            cant_model(sc),
         )
     if sc.odometer.enabled:
         streams["odometer"] = simulate_odometer(

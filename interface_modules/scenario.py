@@ -55,6 +55,8 @@ class TrackConfig:
     tunnels: tuple[Zone, ...] = ()  #: tunnels: GNSS outage zones, events on entry/exit
     tunnel_gnss_mode: str = "no_fix"  #: "no_fix" (fix_quality 0 datagrams) or "silent" inside tunnels
     segments: tuple[SegmentConfig, ...] = ()  #: geometry for database = "synthetic"
+    cant_design_speed_kmh: float | None = None  #: cant balances this speed in curves [km/h]; None: no cant
+    max_cant_mm: float = 150.0  #: largest cant [mm]
 
 
 @dataclass(frozen=True)
@@ -190,6 +192,8 @@ def scenario_from_dict(data: dict[str, Any], *, source: str = "<dict>", base_dir
             "tunnels",
             "tunnel_gnss_mode",
             "segments",
+            "cant_design_speed_kmh",
+            "max_cant_mm",
         },
     )
     track = TrackConfig(
@@ -205,6 +209,8 @@ def scenario_from_dict(data: dict[str, Any], *, source: str = "<dict>", base_dir
             _zone(z, f"track.tunnels[{i}]", False) for i, z in enumerate(_list(track_t, "track", "tunnels"))
         ),
         tunnel_gnss_mode=_get(track_t, "track", "tunnel_gnss_mode", str, "no_fix"),
+        cant_design_speed_kmh=_get(track_t, "track", "cant_design_speed_kmh", float, None),
+        max_cant_mm=_get(track_t, "track", "max_cant_mm", float, 150.0),
         segments=tuple(
             _dataclass_from(SegmentConfig, z, f"track.segments[{i}]")
             for i, z in enumerate(_list(track_t, "track", "segments"))
@@ -288,6 +294,10 @@ def validate(sc: Scenario) -> Scenario:
         raise ScenarioError("track.line_speed_kmh must be > 0")
     if sc.track.tunnel_gnss_mode not in ("no_fix", "silent"):
         raise ScenarioError("track.tunnel_gnss_mode must be 'no_fix' or 'silent'")
+    if sc.track.cant_design_speed_kmh is not None and sc.track.cant_design_speed_kmh <= 0:
+        raise ScenarioError("track.cant_design_speed_kmh must be > 0")
+    if not 0.0 <= sc.track.max_cant_mm <= 200.0:
+        raise ScenarioError("track.max_cant_mm must be in 0..200 mm")
     if sc.track.database == "synthetic" and not sc.track.segments:
         raise ScenarioError("a synthetic track needs [[track.segments]]")
     for z in sc.track.speed_limits + sc.track.tunnels:

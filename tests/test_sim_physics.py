@@ -279,3 +279,36 @@ def test_reversed_journey_runs_backwards_along_the_line():
     traj = drive(sc.train, legs, dt_s=0.01)
     assert np.all(np.diff(traj.s_m) <= 1e-12)
     assert abs(traj.s_m[-1] - 20.0) < 1.0 and set(traj.direction.tolist()) == {-1}
+
+
+def test_cant_rolls_the_body_into_the_curve():
+    from interface_modules.motion import Trajectory
+    from interface_modules.sensors.imu import CantModel
+
+    track = SyntheticTrack([Segment(200.0), Segment(400.0, 1 / 300.0), Segment(200.0)])
+    cant = CantModel(design_speed_mps=15.0, max_cant_m=0.15, rail_spacing_m=1.5)
+    n = 100 * 60
+    t = np.arange(n) * 0.01
+    traj = Trajectory(
+        dt_s=0.01,
+        t_s=t,
+        s_m=100.0 + 12.0 * t,
+        v_mps=np.full(n, 12.0),
+        a_mps2=np.zeros(n),
+        direction=np.ones(n, dtype=np.int8),
+        events=[],
+    )
+    _, f, w = true_imu(traj, track, 1, cant)
+    _, f0, w0 = true_imu(traj, track, 1)
+    np.testing.assert_array_equal(f[:, 0], f0[:, 0])  # ax (and so the along-track integration) is unchanged
+    mid = (traj.s_m > 350.0) & (traj.s_m < 550.0)
+    phi = math.asin(1.5 * 15.0**2 / 300.0 / G_MPS2 / 1.5)  # cant 115 mm < 150 mm
+    ay_level = 12.0**2 / 300.0
+    np.testing.assert_allclose(f[mid, 1], ay_level * math.cos(phi) - G_MPS2 * math.sin(phi), atol=1e-9)
+    np.testing.assert_allclose(f[mid, 2], -ay_level * math.sin(phi) - G_MPS2 * math.cos(phi), atol=1e-9)
+    assert np.all(np.abs(f[mid, 1]) < np.abs(f0[mid, 1]))  # below the balancing speed: less lateral force
+    np.testing.assert_allclose(np.linalg.norm(f[mid], axis=1), np.linalg.norm(f0[mid], axis=1), atol=1e-9)
+    # the roll rate integrates to the roll angle in the curve and back to zero after it
+    roll = np.concatenate(([0.0], np.cumsum(w[:, 0]) * 0.01))[:-1]
+    np.testing.assert_allclose(roll[mid], phi, atol=1e-12)
+    assert abs(roll[-1]) < 1e-12

@@ -8,8 +8,10 @@ Error-free values at sample ``j`` (sampling time ``t_j``, covering ``[t_j, t_j +
   truth's scheme (see ``motion``) reproduces the truth's speed and arc length.
 - ``ay = v^2 k`` (centripetal, ``k`` signed curvature in the direction of travel, > 0 right turn),
 - ``az = -g cos(theta) - v^2 dtheta/dx`` (vertical curves; a level IMU at rest reads ``-g``),
-- ``gx = 0`` (cant is not modelled: the track database carries no superelevation),
-  ``gy = v dtheta/dx`` (pitch rate), ``gz = v k`` (yaw rate).
+- ``gx = 0``, ``gy = v dtheta/dx`` (pitch rate), ``gz = v k`` (yaw rate),
+- with a :class:`CantModel` (the databases carry no superelevation, so a scenario may give the
+  line's design rule) the car body rolls into the curve: lateral and vertical components are
+  rotated by the roll angle and ``gx`` is the roll rate (see :func:`true_imu`).
 
 Errors, per axis, in this order: mounting misalignment (a fixed small rotation, angles ~
 N(0, misalignment_sigma)), scale error ``(1 + N(0, scale_sigma))``, turn-on bias ~ N(0, bias_sigma),
@@ -18,6 +20,8 @@ bias steps, quantisation to the LSB, then stuck episodes (repeat the last output
 """
 
 from __future__ import annotations
+
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -49,8 +53,37 @@ def rotation_from_angles(angles_rad: np.ndarray) -> np.ndarray:
     return np.eye(3) + np.sin(theta) * kx + (1.0 - np.cos(theta)) * (kx @ kx)
 
 
-def true_imu(traj: Trajectory, track, decim: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Error-free (t_s, specific force (n, 3), rates (n, 3)) at every ``decim``-th truth sample."""
+@dataclass(frozen=True)
+class CantModel:
+    """Superelevation from the curvature (the track databases carry none): the design rule of a line.
+
+    ``cant = min(max_cant_m, rail_spacing_m * v_design^2 |k| / g)``, the outer rail raised, so the car
+    body rolls towards the inside of the curve by ``asin(cant / rail_spacing_m)``.
+    """
+
+    design_speed_mps: float  #: speed at which the cant balances the centripetal force [m/s]
+    max_cant_m: float  #: largest cant [m]
+    rail_spacing_m: float  #: distance between the rail centres: 1.5 m standard gauge, 1.06 m metre gauge [m]
+
+    def roll_rad(self, curvature_per_m):
+        """Signed roll angle [rad], > 0 right side down (a right-hand curve), for the signed curvature."""
+        k = np.asarray(curvature_per_m, dtype=float)
+        cant = np.minimum(
+            self.max_cant_m, self.rail_spacing_m * self.design_speed_mps**2 * np.abs(k) / G_MPS2
+        )
+        return np.sign(k) * np.arcsin(np.clip(cant / self.rail_spacing_m, 0.0, 1.0))
+
+
+def true_imu(
+    traj: Trajectory, track, decim: int, cant: CantModel | None = None
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Error-free (t_s, specific force (n, 3), rates (n, 3)) at every ``decim``-th truth sample.
+
+    Without cant the body frame is the track's level frame. With cant, the level-frame vectors
+    ``f = (ax, v^2 k, -g cos(theta) - v^2 dtheta/dx)`` and ``w = (0, v dtheta/dx, v k)`` are rotated into
+    the body rolled by ``phi`` (body y = (0, cos phi, sin phi), body z = (0, -sin phi, cos phi)), and gx
+    is the roll rate (mean over the sample interval); ax is unchanged.
+    """
     n = traj.t_s.size // decim
     idx = np.arange(n) * decim
     t = traj.t_s[idx]
@@ -68,12 +101,27 @@ def true_imu(traj: Trajectory, track, decim: int) -> tuple[np.ndarray, np.ndarra
         np.asarray(track.grade_at(lo), float)
     )
     dtheta_dx = dtheta_ds / span  # d(d*theta)/d(d*s): the sign of travel cancels
-    k = d * np.asarray(track.curvature_at(s), dtype=float)
-    f = np.column_stack(
-        (a_mean + G_MPS2 * np.sin(theta), v * v * k, -G_MPS2 * np.cos(theta) - v * v * dtheta_dx)
-    )
-    w = np.column_stack((np.zeros(n), v * dtheta_dx, v * k))
-    return t, f, w
+    k_track = np.asarray(track.curvature_at(s), dtype=float)
+    k = d * k_track
+    fx = a_mean + G_MPS2 * np.sin(theta)
+    fy = v * v * k
+    fz = -G_MPS2 * np.cos(theta) - v * v * dtheta_dx
+    wx = np.zeros(n)
+    wy = v * dtheta_dx
+    wz = v * k
+    if cant is not None:
+        phi = d * cant.roll_rad(k_track)  # rolls towards the inside of the curve in either direction
+        # roll rate = mean over the sample interval (roll at the next sample's position minus this one's),
+        # so integrating gx gives the roll angle exactly, like ax gives the speed
+        step = decim * traj.dt_s
+        nxt = np.minimum(idx + decim, traj.s_m.size - 1)
+        s_next = np.where(idx + decim < traj.s_m.size, traj.s_m[nxt], s + d * v * step)
+        phi_next = d * cant.roll_rad(np.asarray(track.curvature_at(s_next), dtype=float))
+        c, sn = np.cos(phi), np.sin(phi)
+        fy, fz = fy * c + fz * sn, -fy * sn + fz * c
+        wy, wz = wy * c + wz * sn, -wy * sn + wz * c
+        wx = (phi_next - phi) / step
+    return t, np.column_stack((fx, fy, fz)), np.column_stack((wx, wy, wz))
 
 
 def simulate_imu(
@@ -84,10 +132,11 @@ def simulate_imu(
     faults: list[Fault],
     rng: np.random.Generator,
     truth_rate_hz: float,
+    cant: CantModel | None = None,
 ) -> SampleStream:
     """IMU samples with errors (see module doc)."""
     decim = decimation(truth_rate_hz, rate_hz, "IMU")
-    t, f_true, w_true = true_imu(traj, track, decim)
+    t, f_true, w_true = true_imu(traj, track, decim, cant)
     n = t.size
     dt = 1.0 / rate_hz
     # draw order is fixed: misalignment, scales, turn-on biases, random walks, white noise
