@@ -1,6 +1,6 @@
 """``sfa convert``: real sensor logs -> capture.pcap, track.db (+ truth.csv) for ``sfa replay``.
 
-    sfa convert smartloc [SRC_DIR] -o OUT_DIR [--seed N] [--gps-sigma M] [--evaluate]
+    sfa convert smartloc [SRC_DIR] -o OUT_DIR [--gnss synthetic|spp] [--seed N] [--gps-sigma M] [--evaluate]
     sfa convert dresden [SRC.csv] -o OUT_DIR [--speed-sigma S] [--latency S] [--evaluate]
 
 SRC defaults to the copies bundled in tools/data/. ``--evaluate`` then runs the capture through the
@@ -21,6 +21,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     sl.add_argument("src", nargs="?", help="directory with Berlin_Potsdamer_Platz_{GT,Input}.txt "
                                            "(default: the bundled copy)")
     sl.add_argument("--seed", type=int, default=1, help="seed of the synthesised GNSS errors (default 1)")
+    sl.add_argument("--gnss", choices=("synthetic", "spp"), default="synthetic",
+                    help="GNSS fixes: 'synthetic' (truth + seeded Gauss-Markov/white noise, default) or "
+                         "'spp' (real: robust single-point solution from the dataset's pseudoranges)")
     sl.add_argument("--gps-sigma", type=float, metavar="M",
                     help="total synthesised GNSS error per horizontal axis, 1-sigma [m] (default: the "
                          "standalone preset, 1.118 m = 1.0 m Gauss-Markov + 0.5 m white)")
@@ -74,7 +77,7 @@ def run(args: argparse.Namespace) -> int:
         noise = GnssNoise.from_preset("standalone")
         if args.gps_sigma is not None:
             noise = noise.scaled_to(args.gps_sigma)
-        cfg = SmartLocConfig(seed=args.seed, gnss=noise)
+        cfg = SmartLocConfig(seed=args.seed, gnss=noise, gnss_source=args.gnss)
         conv = convert_smartloc(args.src, args.out, cfg, overwrite=args.force)
     else:
         from tools.adapters.dresden import DresdenConfig, convert_dresden

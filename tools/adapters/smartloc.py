@@ -10,8 +10,10 @@ What goes into the capture (docs/real-data.md has the reasons and the measured r
   constant-velocity model (``FilterConfig.no_imu_accel_psd_m2ps3``), and reports ``imu_timeout``.
 * GPS: SYNTHESISED from the ground truth at ``rate_hz`` (1 Hz): the truth position (ECEF, linearly
   interpolated at the fix time) plus a seeded first-order Gauss-Markov + white horizontal error and a
-  white vertical error (defaults: the simulator's ``standalone`` preset). The dataset's raw GNSS is
-  pseudoranges in an urban canyon; no position solution is computed from them here.
+  white vertical error (defaults: the simulator's ``standalone`` preset). Or, with
+  ``gnss_source="spp"``, REAL: a robust single-point solution from the dataset's urban-canyon
+  pseudoranges at the same rate (:mod:`tools.adapters.spp`; epochs without a solution are sent as
+  "no fix").
 * Track: one line digitised from the ground-truth trajectory (ECEF -> WGS84 with pyproj), thinned so
   that vertices are at least ``min_spacing_m`` apart (this also drops the standstill samples); no
   smoothing (the reference trajectory is centimetre-grade already).
@@ -46,6 +48,7 @@ from tools.adapters.common import (
     write_pcap,
     write_truth_csv,
 )
+from tools.adapters.spp import SppConfig
 from tools.errors import ToolError
 
 GT_FILE = "Berlin_Potsdamer_Platz_GT.txt"
@@ -72,6 +75,8 @@ class SmartLocConfig:
     seed: int = 1  #: seed of the synthesised GNSS errors
     gnss: GnssNoise = field(default_factory=GnssNoise)  #: synthesised GNSS error model
     min_spacing_m: float = 1.0  #: smallest distance between track vertices [m]
+    gnss_source: str = "synthetic"  #: "synthetic" (truth + noise) or "spp" (robust single-point solution)
+    spp: SppConfig = field(default_factory=SppConfig)  #: settings of the single-point solution
     #: vertex distance that makes a junction [m]: 1 cm, because where the drive passes a place twice
     #: (the two lanes of one street, opposite directions) the line is not a switch the car could take
     junction_tolerance_m: float = 0.01
@@ -84,6 +89,8 @@ class SmartLocConfig:
             raise ToolError(f"seed must be a non-negative integer, got {self.seed!r}")
         if not (math.isfinite(self.min_spacing_m) and self.min_spacing_m > 0):
             raise ToolError(f"min_spacing_m must be > 0, got {self.min_spacing_m!r}")
+        if self.gnss_source not in ("synthetic", "spp"):
+            raise ToolError(f"gnss_source must be 'synthetic' or 'spp', got {self.gnss_source!r}")
 
 
 @dataclass(frozen=True)
@@ -193,8 +200,6 @@ def convert_smartloc(
     overwrite: bool = False,
 ) -> Conversion:
     """Write capture.pcap, track.db, truth.csv and metadata.json for the smartLoc drive into ``out_dir``."""
-    from pyproj import Geod
-
     from listener.codec import GpsFix, GroundTruth, OdometerSample
     from track_db import TrackDatabase
     from track_db.build import BuildConfig, LineGeometry, create_database
@@ -237,19 +242,14 @@ def convert_smartloc(
     truth_v = np.gradient(truth_s, data.gt_t_s)
     db.close()
 
-    # --- synthesised GNSS at rate_hz inside the truth's time span
+    # --- GNSS at rate_hz inside the truth's time span: synthesised, or solved from the pseudoranges
     noise = cfg.gnss
     t0, t1 = float(data.gt_t_s[0]), float(data.gt_t_s[-1])
-    step = 1.0 / noise.rate_hz
-    gps_t = np.arange(math.ceil(t0 / step) * step, t1 + 1e-9, step)
-    ecef = np.column_stack([np.interp(gps_t, data.gt_t_s, data.gt_ecef_m[:, i]) for i in range(3)])
-    glat, glon, gh = ecef_to_geodetic(ecef)
-    rng = np.random.default_rng(cfg.seed)
-    err = gnss_errors_m(noise, gps_t, rng)
-    az = np.degrees(np.arctan2(err[:, 0], err[:, 1]))
-    dist = np.hypot(err[:, 0], err[:, 1])
-    flon, flat, _ = Geod(ellps="WGS84").fwd(glon, glat, az, dist)
-    falt = gh - GEOID_UNDULATION_M + err[:, 2]
+    if cfg.gnss_source == "synthetic":
+        gnss = _synthetic_fixes(data, noise, cfg.seed)
+    else:
+        gnss = _spp_fixes(src / INPUT_FILE, data, noise.rate_hz, cfg.spp)
+    gnss_stats = _fix_errors(gnss, data)
 
     # --- datagrams
     tl = Timeline(cfg.schedule)
@@ -258,10 +258,9 @@ def convert_smartloc(
     for t, v, sg in zip(data.odo_t_s.tolist(), data.odo_speed_mps.tolist(), data.odo_sigma_mps.tolist(),
                         strict=True):
         tl.add("odometer", t, lambda seq, t=t, v=v, sg=sg: OdometerSample(seq, v, sg, t))
-    for t, la, lo, al in zip(gps_t.tolist(), np.asarray(flat).tolist(), np.asarray(flon).tolist(),
-                             falt.tolist(), strict=True):
-        tl.add("gps", t, lambda seq, t=t, la=la, lo=lo, al=al: GpsFix(
-            seq, la, lo, al, noise.fix_quality, noise.num_sv, noise.reported_sigma_h_m, t))
+    for fix in gnss:
+        tl.add("gps", fix.t_s, lambda seq, f=fix: GpsFix(
+            seq, f.lat_deg, f.lon_deg, f.alt_m, f.fix_quality, f.num_sv, f.sigma_h_m, f.t_s))
     packets = tl.packets()
     capture = out / "capture.pcap"
     write_pcap(packets, capture, cfg.schedule.listener_port)
@@ -284,20 +283,12 @@ def convert_smartloc(
             "track": "digitised from the ground truth (point3, ECEF -> WGS84 by pyproj EPSG:4978->4979)",
             "truth": "ground truth projected on the track, locally (truth.csv: epoch, arc_length, speed)",
         },
-        "synthesised": {
-            "gps": {
-                "how": "truth ECEF linearly interpolated at each fix time + Gauss-Markov + white error "
-                       "(east/north, exact discretisation, stationary start) + white vertical error",
-                "seed": cfg.seed,
-                "noise": asdict(noise),
-                "total_sigma_per_axis_m": noise.total_sigma_m,
-                "altitude": f"ellipsoidal height - {GEOID_UNDULATION_M} m (approximate geoid undulation)",
-            },
-        },
+        "gnss": _gnss_metadata(cfg, gnss_stats),
         "not_used": {
             "yaw_rate": "odom3 wz is real but not sent: an IMU datagram needs a specific-force vector "
                         "the car did not record (no accelerometer); no accelerations are invented",
-            "pseudoranges": "pseudorange3 records (urban-canyon GNSS) are not turned into fixes",
+            "pseudoranges": "used only with gnss_source 'spp'" if cfg.gnss_source == "synthetic"
+                            else "used: robust single-point solution (see gnss)",
         },
         "capture": {
             "listener_port": cfg.schedule.listener_port,
@@ -322,3 +313,114 @@ def convert_smartloc(
     metadata = out / "metadata.json"
     write_json(metadata, meta)
     return Conversion(out, capture, track_path, truth, metadata, len(packets), by_module)
+
+
+@dataclass(frozen=True)
+class _Fix:
+    t_s: float
+    lat_deg: float
+    lon_deg: float
+    alt_m: float
+    fix_quality: int
+    num_sv: int
+    sigma_h_m: float
+    ecef_m: tuple[float, float, float] | None  #: None: no fix
+
+
+def _fix_epochs(t_s: np.ndarray, rate_hz: float, candidates: np.ndarray | None = None) -> np.ndarray:
+    """Epochs at rate_hz within the span of t_s: the whole multiples of 1/rate_hz, or (candidates
+    given) the first candidate epoch at or after each multiple and before the next."""
+    step = 1.0 / rate_hz
+    grid = np.arange(math.ceil(t_s[0] / step) * step, t_s[-1] + 1e-9, step)
+    if candidates is None:
+        return grid
+    c = np.unique(candidates)
+    idx = np.searchsorted(c, grid - 1e-6, side="left")
+    ok = idx < c.size
+    picked = c[idx[ok]]
+    picked = picked[picked < grid[ok] + step - 1e-6]
+    return np.unique(picked)
+
+
+def _synthetic_fixes(data: SmartLocData, noise: GnssNoise, seed: int) -> list[_Fix]:
+    """Truth ECEF (linear in time) at each epoch + seeded Gauss-Markov + white error."""
+    from pyproj import Geod
+
+    t = _fix_epochs(data.gt_t_s, noise.rate_hz)
+    ecef = np.column_stack([np.interp(t, data.gt_t_s, data.gt_ecef_m[:, i]) for i in range(3)])
+    lat, lon, h = ecef_to_geodetic(ecef)
+    err = gnss_errors_m(noise, t, np.random.default_rng(seed))
+    az = np.degrees(np.arctan2(err[:, 0], err[:, 1]))
+    flon, flat, _ = Geod(ellps="WGS84").fwd(lon, lat, az, np.hypot(err[:, 0], err[:, 1]))
+    alt = h - GEOID_UNDULATION_M + err[:, 2]
+    return [_Fix(float(ti), float(a), float(o), float(al), noise.fix_quality, noise.num_sv,
+                 noise.reported_sigma_h_m, None)
+            for ti, a, o, al in zip(t, np.asarray(flat), np.asarray(flon), alt, strict=True)]
+
+
+def _spp_fixes(input_path: Path, data: SmartLocData, rate_hz: float, cfg: SppConfig) -> list[_Fix]:
+    """Robust single-point solutions at rate_hz from the pseudoranges; epochs without a solution are
+    sent as 'no fix' (NMEA quality 0), as a receiver reports them."""
+    from tools.adapters.spp import read_pseudoranges, solve_all
+
+    pr = read_pseudoranges(input_path)
+    epochs = _fix_epochs(data.gt_t_s, rate_hz, pr.epochs())
+    sols = solve_all(pr, epochs, cfg)
+    ok = [s for s in sols if s is not None]
+    if ok:
+        lat, lon, h = ecef_to_geodetic(np.array([s.ecef_m for s in ok]))
+    out: list[_Fix] = []
+    k = 0
+    for t, s in zip(epochs.tolist(), sols, strict=True):
+        if s is None:
+            out.append(_Fix(t, 0.0, 0.0, 0.0, 0, 0, 1.0e5, None))
+            continue
+        ecef = (float(s.ecef_m[0]), float(s.ecef_m[1]), float(s.ecef_m[2]))
+        out.append(_Fix(t, float(lat[k]), float(lon[k]), float(h[k]) - GEOID_UNDULATION_M, 1,
+                        min(s.used, 255), max(s.sigma_h_m, 0.1), ecef))
+        k += 1
+    return out
+
+
+def _fix_errors(fixes: list[_Fix], data: SmartLocData) -> dict:
+    """Horizontal error of the fixes against the ground truth at their epochs (metres)."""
+    from pyproj import Geod
+
+    good = [f for f in fixes if f.fix_quality > 0]
+    if not good:
+        return {"fixes": len(fixes), "with_fix": 0}
+    t = np.array([f.t_s for f in good])
+    ecef = np.column_stack([np.interp(t, data.gt_t_s, data.gt_ecef_m[:, i]) for i in range(3)])
+    lat, lon, _ = ecef_to_geodetic(ecef)
+    _, _, d = Geod(ellps="WGS84").inv(lon, lat, [f.lon_deg for f in good], [f.lat_deg for f in good])
+    d = np.asarray(d)
+    return {
+        "fixes": len(fixes),
+        "with_fix": len(good),
+        "horizontal_error_p50_m": float(np.percentile(d, 50)),
+        "horizontal_error_p95_m": float(np.percentile(d, 95)),
+        "horizontal_error_max_m": float(d.max()),
+        "reported_sigma_h_p50_m": float(np.median([f.sigma_h_m for f in good])),
+    }
+
+
+def _gnss_metadata(cfg: SmartLocConfig, stats: dict) -> dict:
+    if cfg.gnss_source == "synthetic":
+        return {
+            "source": "synthesised",
+            "how": "truth ECEF linearly interpolated at each fix time + Gauss-Markov + white error "
+                   "(east/north, exact discretisation, stationary start) + white vertical error",
+            "seed": cfg.seed,
+            "noise": asdict(cfg.gnss),
+            "total_sigma_per_axis_m": cfg.gnss.total_sigma_m,
+            "altitude": f"ellipsoidal height - {GEOID_UNDULATION_M} m (approximate geoid undulation)",
+            "error_vs_truth": stats,
+        }
+    return {
+        "source": "real: robust single-point solution from the pseudorange3 records (tools/adapters/spp.py)",
+        "how": "Sagnac-corrected ranges, one clock per satellite system, elevation/C-N0 mask, Cauchy "
+               "IRLS, height aiding; sigma_h from the weighted covariance; no solution -> quality 0",
+        "rate_hz": cfg.gnss.rate_hz,
+        "settings": asdict(cfg.spp),
+        "error_vs_truth": stats,
+    }
