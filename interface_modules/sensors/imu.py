@@ -58,12 +58,14 @@ class CantModel:
     """Superelevation from the curvature (the track databases carry none): the design rule of a line.
 
     ``cant = min(max_cant_m, rail_spacing_m * v_design^2 |k| / g)``, the outer rail raised, so the car
-    body rolls towards the inside of the curve by ``asin(cant / rail_spacing_m)``.
+    body rolls towards the inside of the curve by ``asin(cant / rail_spacing_m)``, averaged along the
+    line over ``transition_m`` (the cant ramp).
     """
 
     design_speed_mps: float  #: speed at which the cant balances the centripetal force [m/s]
     max_cant_m: float  #: largest cant [m]
     rail_spacing_m: float  #: distance between the rail centres: 1.5 m standard gauge, 1.06 m metre gauge [m]
+    transition_m: float = 40.0  #: cant changes are spread over this length (1:400 for 100 mm) [m]
 
     def roll_rad(self, curvature_per_m):
         """Signed roll angle [rad], > 0 right side down (a right-hand curve), for the signed curvature."""
@@ -72,6 +74,21 @@ class CantModel:
             self.max_cant_m, self.rail_spacing_m * self.design_speed_mps**2 * np.abs(k) / G_MPS2
         )
         return np.sign(k) * np.arcsin(np.clip(cant / self.rail_spacing_m, 0.0, 1.0))
+
+    def roll_profile(self, track, step_m: float = 1.0) -> tuple[np.ndarray, np.ndarray]:
+        """(arc length grid [m], roll [rad]) along the whole line, averaged over ``transition_m``.
+
+        The moving average is the cant ramp: the cant never changes faster than a real ramp would,
+        whatever the resolution of the curvature.
+        """
+        n = int(np.ceil(track.length_m / step_m)) + 1
+        s = np.linspace(0.0, track.length_m, n)
+        roll = self.roll_rad(np.asarray(track.curvature_at(s), dtype=float))
+        width = max(int(round(self.transition_m / (s[1] - s[0]))), 1) if n > 1 else 1
+        if width > 1:
+            padded = np.pad(roll, (width // 2, width - 1 - width // 2), mode="edge")
+            roll = np.convolve(padded, np.ones(width) / width, mode="valid")
+        return s, roll
 
 
 def true_imu(
@@ -101,8 +118,7 @@ def true_imu(
         np.asarray(track.grade_at(lo), float)
     )
     dtheta_dx = dtheta_ds / span  # d(d*theta)/d(d*s): the sign of travel cancels
-    k_track = np.asarray(track.curvature_at(s), dtype=float)
-    k = d * k_track
+    k = d * np.asarray(track.curvature_at(s), dtype=float)
     fx = a_mean + G_MPS2 * np.sin(theta)
     fy = v * v * k
     fz = -G_MPS2 * np.cos(theta) - v * v * dtheta_dx
@@ -110,13 +126,14 @@ def true_imu(
     wy = v * dtheta_dx
     wz = v * k
     if cant is not None:
-        phi = d * cant.roll_rad(k_track)  # rolls towards the inside of the curve in either direction
+        grid, roll = cant.roll_profile(track)
+        phi = d * np.interp(s, grid, roll)  # rolls towards the inside of the curve in either direction
         # roll rate = mean over the sample interval (roll at the next sample's position minus this one's),
         # so integrating gx gives the roll angle exactly, like ax gives the speed
         step = decim * traj.dt_s
         nxt = np.minimum(idx + decim, traj.s_m.size - 1)
         s_next = np.where(idx + decim < traj.s_m.size, traj.s_m[nxt], s + d * v * step)
-        phi_next = d * cant.roll_rad(np.asarray(track.curvature_at(s_next), dtype=float))
+        phi_next = d * np.interp(s_next, grid, roll)
         c, sn = np.cos(phi), np.sin(phi)
         fy, fz = fy * c + fz * sn, -fy * sn + fz * c
         wy, wz = wy * c + wz * sn, -wy * sn + wz * c
