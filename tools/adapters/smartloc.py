@@ -27,7 +27,7 @@ from __future__ import annotations
 
 import hashlib
 import math
-from dataclasses import asdict, dataclass, field
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -40,7 +40,6 @@ from tools.adapters.common import (
     Timeline,
     add_control,
     count_by_module,
-    gnss_errors_m,
     prepare_out_dir,
     project_along,
     thin_by_spacing,
@@ -201,6 +200,7 @@ def convert_smartloc(
 ) -> Conversion:
     """Write capture.pcap, track.db, truth.csv and metadata.json for the smartLoc drive into ``out_dir``."""
     from listener.codec import GpsFix, GroundTruth, OdometerSample
+    from tools.adapters.smartloc_gnss import fix_errors, gnss_metadata, spp_fixes, synthetic_fixes
     from track_db import TrackDatabase
     from track_db.build import BuildConfig, LineGeometry, create_database
     from track_db.errors import TrackDbError
@@ -246,10 +246,10 @@ def convert_smartloc(
     noise = cfg.gnss
     t0, t1 = float(data.gt_t_s[0]), float(data.gt_t_s[-1])
     if cfg.gnss_source == "synthetic":
-        gnss = _synthetic_fixes(data, noise, cfg.seed)
+        gnss = synthetic_fixes(data, noise, cfg.seed)
     else:
-        gnss = _spp_fixes(src / INPUT_FILE, data, noise.rate_hz, cfg.spp)
-    gnss_stats = _fix_errors(gnss, data)
+        gnss = spp_fixes(src / INPUT_FILE, data, noise.rate_hz, cfg.spp)
+    gnss_stats = fix_errors(gnss, data)
 
     # --- datagrams
     tl = Timeline(cfg.schedule)
@@ -283,7 +283,7 @@ def convert_smartloc(
             "track": "digitised from the ground truth (point3, ECEF -> WGS84 by pyproj EPSG:4978->4979)",
             "truth": "ground truth projected on the track, locally (truth.csv: epoch, arc_length, speed)",
         },
-        "gnss": _gnss_metadata(cfg, gnss_stats),
+        "gnss": gnss_metadata(cfg.gnss_source, cfg.seed, cfg.gnss, cfg.spp, gnss_stats),
         "not_used": {
             "yaw_rate": "odom3 wz is real but not sent: an IMU datagram needs a specific-force vector "
                         "the car did not record (no accelerometer); no accelerations are invented",
@@ -314,113 +314,3 @@ def convert_smartloc(
     write_json(metadata, meta)
     return Conversion(out, capture, track_path, truth, metadata, len(packets), by_module)
 
-
-@dataclass(frozen=True)
-class _Fix:
-    t_s: float
-    lat_deg: float
-    lon_deg: float
-    alt_m: float
-    fix_quality: int
-    num_sv: int
-    sigma_h_m: float
-    ecef_m: tuple[float, float, float] | None  #: None: no fix
-
-
-def _fix_epochs(t_s: np.ndarray, rate_hz: float, candidates: np.ndarray | None = None) -> np.ndarray:
-    """Epochs at rate_hz within the span of t_s: the whole multiples of 1/rate_hz, or (candidates
-    given) the first candidate epoch at or after each multiple and before the next."""
-    step = 1.0 / rate_hz
-    grid = np.arange(math.ceil(t_s[0] / step) * step, t_s[-1] + 1e-9, step)
-    if candidates is None:
-        return grid
-    c = np.unique(candidates)
-    idx = np.searchsorted(c, grid - 1e-6, side="left")
-    ok = idx < c.size
-    picked = c[idx[ok]]
-    picked = picked[picked < grid[ok] + step - 1e-6]
-    return np.unique(picked)
-
-
-def _synthetic_fixes(data: SmartLocData, noise: GnssNoise, seed: int) -> list[_Fix]:
-    """Truth ECEF (linear in time) at each epoch + seeded Gauss-Markov + white error."""
-    from pyproj import Geod
-
-    t = _fix_epochs(data.gt_t_s, noise.rate_hz)
-    ecef = np.column_stack([np.interp(t, data.gt_t_s, data.gt_ecef_m[:, i]) for i in range(3)])
-    lat, lon, h = ecef_to_geodetic(ecef)
-    err = gnss_errors_m(noise, t, np.random.default_rng(seed))
-    az = np.degrees(np.arctan2(err[:, 0], err[:, 1]))
-    flon, flat, _ = Geod(ellps="WGS84").fwd(lon, lat, az, np.hypot(err[:, 0], err[:, 1]))
-    alt = h - GEOID_UNDULATION_M + err[:, 2]
-    return [_Fix(float(ti), float(a), float(o), float(al), noise.fix_quality, noise.num_sv,
-                 noise.reported_sigma_h_m, None)
-            for ti, a, o, al in zip(t, np.asarray(flat), np.asarray(flon), alt, strict=True)]
-
-
-def _spp_fixes(input_path: Path, data: SmartLocData, rate_hz: float, cfg: SppConfig) -> list[_Fix]:
-    """Robust single-point solutions at rate_hz from the pseudoranges; epochs without a solution are
-    sent as 'no fix' (NMEA quality 0), as a receiver reports them."""
-    from tools.adapters.spp import read_pseudoranges, solve_all
-
-    pr = read_pseudoranges(input_path)
-    epochs = _fix_epochs(data.gt_t_s, rate_hz, pr.epochs())
-    sols = solve_all(pr, epochs, cfg)
-    ok = [s for s in sols if s is not None]
-    if ok:
-        lat, lon, h = ecef_to_geodetic(np.array([s.ecef_m for s in ok]))
-    out: list[_Fix] = []
-    k = 0
-    for t, s in zip(epochs.tolist(), sols, strict=True):
-        if s is None:
-            out.append(_Fix(t, 0.0, 0.0, 0.0, 0, 0, 1.0e5, None))
-            continue
-        ecef = (float(s.ecef_m[0]), float(s.ecef_m[1]), float(s.ecef_m[2]))
-        out.append(_Fix(t, float(lat[k]), float(lon[k]), float(h[k]) - GEOID_UNDULATION_M, 1,
-                        min(s.used, 255), max(s.sigma_h_m, 0.1), ecef))
-        k += 1
-    return out
-
-
-def _fix_errors(fixes: list[_Fix], data: SmartLocData) -> dict:
-    """Horizontal error of the fixes against the ground truth at their epochs (metres)."""
-    from pyproj import Geod
-
-    good = [f for f in fixes if f.fix_quality > 0]
-    if not good:
-        return {"fixes": len(fixes), "with_fix": 0}
-    t = np.array([f.t_s for f in good])
-    ecef = np.column_stack([np.interp(t, data.gt_t_s, data.gt_ecef_m[:, i]) for i in range(3)])
-    lat, lon, _ = ecef_to_geodetic(ecef)
-    _, _, d = Geod(ellps="WGS84").inv(lon, lat, [f.lon_deg for f in good], [f.lat_deg for f in good])
-    d = np.asarray(d)
-    return {
-        "fixes": len(fixes),
-        "with_fix": len(good),
-        "horizontal_error_p50_m": float(np.percentile(d, 50)),
-        "horizontal_error_p95_m": float(np.percentile(d, 95)),
-        "horizontal_error_max_m": float(d.max()),
-        "reported_sigma_h_p50_m": float(np.median([f.sigma_h_m for f in good])),
-    }
-
-
-def _gnss_metadata(cfg: SmartLocConfig, stats: dict) -> dict:
-    if cfg.gnss_source == "synthetic":
-        return {
-            "source": "synthesised",
-            "how": "truth ECEF linearly interpolated at each fix time + Gauss-Markov + white error "
-                   "(east/north, exact discretisation, stationary start) + white vertical error",
-            "seed": cfg.seed,
-            "noise": asdict(cfg.gnss),
-            "total_sigma_per_axis_m": cfg.gnss.total_sigma_m,
-            "altitude": f"ellipsoidal height - {GEOID_UNDULATION_M} m (approximate geoid undulation)",
-            "error_vs_truth": stats,
-        }
-    return {
-        "source": "real: robust single-point solution from the pseudorange3 records (tools/adapters/spp.py)",
-        "how": "Sagnac-corrected ranges, one clock per satellite system, elevation/C-N0 mask, Cauchy "
-               "IRLS, height aiding; sigma_h from the weighted covariance; no solution -> quality 0",
-        "rate_hz": cfg.gnss.rate_hz,
-        "settings": asdict(cfg.spp),
-        "error_vs_truth": stats,
-    }
