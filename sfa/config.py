@@ -29,7 +29,7 @@ class FilterConfig:
     gravity_mps2: float = 9.80665  #: gravity [m/s^2]
     max_predict_dt_s: float = 0.1  #: longest single prediction step [s]
     # --- gyro (optional update gz = v * curvature(s) + b_g)
-    use_gyro: bool = False  #: apply the gyro update (see docs/filter.md)
+    use_gyro: bool = True  #: apply the gyro update gz = v curvature(s) + b_g (see docs/filter.md)
     gyro_sigma_radps: float = 0.02  #: gyro white noise per sample incl. curvature model error [rad/s]
     gyro_bias_rw_radps_rts: float = 2.0e-5  #: gyro bias random walk [rad/s/sqrt(s)]
     init_sigma_gyro_bias_radps: float = 0.0175  #: initial gyro bias sigma [rad/s]

@@ -280,6 +280,9 @@ class TrackFilter:
                            h.line.curvature_inv_m, t, fx, fy, fz, wx, wy, wz)
             if i == self._reported:
                 code = c
+        if len(self._hyps) > 1 and all(h.aux[L.A_LAST_NIS_GYRO] >= 0.0 for h in self._hyps) \
+                and any(h.aux[L.A_GYRO_OK] != 0.0 for h in self._hyps):
+            self._score(L.A_LAST_NIS_GYRO)  # the yaw rate tells branches apart by their curvature
         return Update("imu", t, Outcome(code))
 
     def _process_odo(self, m: OdoMeas) -> Update:
@@ -337,8 +340,8 @@ class TrackFilter:
         return Update("gps", t, Outcome(code), nis)
 
     def _score(self, nis_slot: int) -> None:
-        """Hypothesis score: robust log-likelihood -NIS/2 (capped) of GNSS fixes and odometer samples
-        that at least one hypothesis accepted (a measurement every hypothesis rejects is a sensor
+        """Hypothesis score: robust log-likelihood -NIS/2 (capped) of GNSS fixes, odometer and gyro
+        samples that at least one hypothesis accepted (a measurement every hypothesis rejects is a sensor
         fault, not evidence for one of them); then prune."""
         cap = self._config.loglik_nis_cap
         for h in self._hyps:

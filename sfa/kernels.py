@@ -32,10 +32,12 @@ from sfa.layout import (
     A_GPS_N,
     A_GPS_REJ,
     A_GPS_TO,
+    A_GYRO_OK,
     A_GZ,
     A_IMU_TO,
     A_INIT,
     A_LAST_NIS_GPS,
+    A_LAST_NIS_GYRO,
     A_LAST_NIS_ODO,
     A_LOGLIK,
     A_ODO_TO,
@@ -646,6 +648,8 @@ def step_imu(x, P, aux, cnt, mem, cfg, ts, tg, tk, t, fx, fy, fz, wx, wy, wz):
     _mem_push_imu(mem, t, fx, fy)
     cnt[C_IMU_OK] += 1
     check_timeouts(aux, cnt, cfg, t)
+    aux[A_LAST_NIS_GYRO] = -1.0
+    aux[A_GYRO_OK] = 0.0
     if cfg[K_USE_GYRO] != 0.0 and abs(x[V]) >= cfg[K_GYRO_MIN_SPEED]:
         H = np.zeros((2, NX))
         R = np.zeros((2, 2))
@@ -657,9 +661,11 @@ def step_imu(x, P, aux, cnt, mem, cfg, ts, tg, tk, t, fx, fy, fz, wx, wy, wz):
         R[0, 0] = cfg[K_GYRO_SIGMA] ** 2
         y[0] = wz - (x[V] * k + x[BG])  # y = gz - (v k(s) + b_g)
         PHt, Sm, Si, nis, logdet = innovation(P, H, R, y, 1)
+        aux[A_LAST_NIS_GYRO] = nis
         if nis <= cfg[K_GATE_GYRO]:
             apply_update(x, P, H, R, y, 1, PHt, Si, cfg, cnt)
             cnt[C_GYRO_OK] += 1
+            aux[A_GYRO_OK] = 1.0
         else:
             cnt[C_GYRO_GATED] += 1
     return O_ACCEPTED

@@ -62,7 +62,9 @@ A_REJ_DS = 30  #: along-track residual of the first fix of the current rejection
 A_REJ_MAXDEV = 31  #: largest change of that residual within the run [m]
 A_DIR = 32  #: sense of travel: +1 the train's forward is increasing arc length, -1 decreasing
 A_FY = 33  #: held lateral specific force from the last IMU sample [m/s^2]
-NAUX = 34
+A_LAST_NIS_GYRO = 34  #: last gyro normalised innovation squared (-1: no gyro update evaluated)
+A_GYRO_OK = 35  #: 1 when the last gyro update was applied
+NAUX = 36
 
 # ---------------------------------------------------------------- counters cnt (int64[NCNT])
 C_IMU_OK = 0

@@ -34,7 +34,7 @@ def db(tmp_path_factory):
 class Oracle:
     """The filter's model with FilterPy: x = [s, v, b_a, k_o, e_gnss, n_gnss, b_g, m_yaw, s_f]."""
 
-    def __init__(self, line, cfg, grade_s, grade):
+    def __init__(self, line, cfg, grade_s, grade, curv):
         from scipy.stats import chi2
 
         self.line, self.cfg = line, cfg
@@ -45,6 +45,9 @@ class Oracle:
         self.fy = 0.0
         self.q_acc = cfg.accel_noise_density_mps2_rthz ** 2 + cfg.accel_model_noise_mps2_rthz ** 2
         self.gate_gps = chi2.ppf(cfg.gate_prob_gps, 2)
+        self.gate_gyro = chi2.ppf(cfg.gate_prob_gyro, 1)
+        self.curv_s, self.curv = grade_s, curv
+        self.gyro_updates = 0
 
     def init(self, m: InitMeas):
         c = self.cfg
@@ -92,6 +95,22 @@ class Oracle:
     def imu(self, m: ImuMeas):
         self.predict(m.t_s)
         self.fx, self.fy = m.f_mps2[0], m.f_mps2[1]
+        x = self.ekf.x
+        if self.cfg.use_gyro and abs(x[1, 0]) >= self.cfg.gyro_min_speed_mps:
+            # gz = v k(s) + b_g, k from the same per-point curvature samples as the filter
+            s = x[0, 0]
+            k = np.interp(s, self.curv_s, self.curv)
+            i = int(np.clip(np.searchsorted(self.curv_s, s, side="right") - 1, 0, self.curv_s.size - 2))
+            dk = (self.curv[i + 1] - self.curv[i]) / (self.curv_s[i + 1] - self.curv_s[i])
+            H = np.zeros((1, NX))
+            H[0, 0], H[0, 1], H[0, 6] = x[1, 0] * dk, k, 1.0
+            R = np.array([[self.cfg.gyro_sigma_radps ** 2]])
+            y = m.w_radps[2] - (x[1, 0] * k + x[6, 0])
+            nis = y * y / (H @ self.ekf.P @ H.T + R)[0, 0]
+            if nis <= self.gate_gyro:
+                self.ekf.update(np.array([[m.w_radps[2]]]), lambda _x: H,
+                                lambda xx: np.array([[xx[1, 0] * k + xx[6, 0]]]), R=R)
+                self.gyro_updates += 1
 
     def odo(self, m: OdoMeas):
         self.predict(m.t_s)
@@ -142,7 +161,7 @@ def test_filter_matches_filterpy_oracle_to_1e9(db):
     f = TrackFilter(db, cfg)
     line = db.line(1)
     arrays = f._line_arrays(1)  # the grade samples the filter uses (the database's smoothed grade)
-    oracle = Oracle(line, cfg, arrays.s_m, arrays.grade)
+    oracle = Oracle(line, cfg, arrays.s_m, arrays.grade, arrays.curvature_inv_m)
     compared = 0
     for m in run.measurements:
         u = f.process(m)
@@ -163,5 +182,7 @@ def test_filter_matches_filterpy_oracle_to_1e9(db):
             np.testing.assert_allclose(P, oracle.ekf.P, rtol=1e-9, atol=1e-12)
         compared += 1
     assert compared == len(run.measurements) - 1
+    assert cfg.use_gyro and oracle.gyro_updates > 10000  # the gyro update is part of the compared model
+    assert f.counters()["gyro_accepted"] == oracle.gyro_updates
     x, _ = f.state()
     assert abs(x[0] - run.s_m[-1]) < 2.0  # and the shared answer is a good one
