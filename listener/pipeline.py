@@ -46,6 +46,11 @@ from listener.config import ListenerConfig
 from listener.obcu_link import ObcuLink
 from listener.seqbuf import SeqBufferConfig, StreamTable, stream_key
 
+#: input counters present in every metrics snapshot, even while zero
+_ALWAYS_REPORTED = (
+    "received", "rejected", "processed", "strobes", "stops", "dated_by_epoch", "dated_by_strobe",
+    "undated_overflow", "merge_overflow", "after_stop",
+)
 _TYPE_NAMES = {1: "imu", 2: "odometer", 3: "gps", 8: "ground_truth", 9: "strobe", 10: "stop"}
 
 
@@ -273,6 +278,7 @@ class Pipeline:
         est = self.last_estimate
         return {
             "input": {
+                **dict.fromkeys(_ALWAYS_REPORTED, 0),
                 **{k: v for k, v in sorted(self.counters.items()) if not k.startswith("outcome_")},
                 "rejected_by_reason": dict(sorted(self.rejected.items())),
                 "by_type": dict(sorted(self.by_type.items())),
