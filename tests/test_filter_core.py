@@ -1,0 +1,171 @@
+"""SFA filter: configuration, presets, public API, nominal accuracy and consistency, lines and junctions,
+sense of travel, covariance hygiene."""
+
+from __future__ import annotations
+
+import math
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from interface_modules.presets import GPS_PRESETS, IMU_PRESETS, ODOMETER_PRESETS
+from sfa import batch
+from sfa.config import FilterConfig
+from sfa.errors import FilterConfigError, FilterStateError, MeasurementTypeError
+from sfa.filter import TrackFilter
+from sfa.layout import COUNTER_NAMES, FilterStatus, Outcome
+from sfa.measurements import InitMeas, OdoMeas
+from sfa.presets import filter_config_for
+from sfa.synthetic import Profile, build_track_db, generate
+from track_db import TrackDatabase
+
+IMU = IMU_PRESETS["mems-train"]
+ODO = ODOMETER_PRESETS["wheel-odometer"]
+GPS = GPS_PRESETS["standalone"]
+
+
+@pytest.fixture(scope="module")
+def db(tmp_path_factory):
+    path = build_track_db(tmp_path_factory.mktemp("track") / "core.db")
+    with TrackDatabase.open(path) as database:
+        yield database
+
+
+def test_config_validation_and_gate_units():
+    cfg = FilterConfig()
+    assert cfg.gate_nis(0.9999, 2) == pytest.approx(-2.0 * math.log(1e-4))  # chi2(2) quantile in closed form
+    assert cfg.gate_nis(0.9973, 1) == pytest.approx(9.0, abs=0.01)  # 3 sigma, 1 dof
+    assert cfg.interval_z() == pytest.approx(1.959964, abs=1e-6)
+    with pytest.raises(FilterConfigError, match="gate_prob_gps"):
+        FilterConfig(gate_prob_gps=1.0)
+    with pytest.raises(FilterConfigError, match="gps_white_sigma_m"):
+        FilterConfig(gps_white_sigma_m=-1.0)
+    with pytest.raises(FilterConfigError, match="finite"):
+        FilterConfig(gps_gm_tau_s=math.nan)
+    with pytest.raises(FilterConfigError, match="unknown FilterConfig"):
+        cfg.replace(no_such_field=1.0)
+    with pytest.raises(FilterConfigError, match="use_gyro"):
+        FilterConfig(use_gyro=1)
+
+
+def test_presets_follow_the_simulator_specs():
+    cfg = filter_config_for("mems-train", "wheel-odometer", "rtk")
+    assert cfg.gps_white_sigma_m == GPS_PRESETS["rtk"].white_sigma_m
+    assert cfg.gps_gm_tau_s == GPS_PRESETS["rtk"].gm_tau_s
+    assert cfg.gps_nominal_sigma_h_m == GPS_PRESETS["rtk"].reported_sigma_h_m
+    assert cfg.init_sigma_odo_scale == ODO.scale_sigma
+    assert cfg.accel_bias_rw_mps2_rts == IMU.accel_bias_rw
+    assert cfg.init_sigma_accel_bias_mps2 > IMU.accel_bias_sigma  # pitch misalignment folded in
+    radar = filter_config_for(odometer="doppler-radar")
+    assert radar.init_sigma_odo_scale == ODOMETER_PRESETS["doppler-radar"].scale_sigma
+    with pytest.raises(FilterConfigError, match="unknown sensor preset"):
+        filter_config_for(gps="galileo-hp")
+    assert filter_config_for(confidence=0.99).confidence == 0.99
+
+
+def test_import_is_light():
+    code = ("import sys, sfa, sfa.cli; "
+            "print('numba' in sys.modules, 'sfa.kernels' in sys.modules, 'scipy' in sys.modules)")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60, check=True)
+    assert out.stdout.split() == ["False", "False", "False"]
+
+
+def test_api_before_and_after_initialisation(db):
+    f = TrackFilter(db, filter_config_for())
+    e = f.estimate()
+    assert e.status == FilterStatus.INITIALISING and e.reasons == ("not_initialised",) and e.line_id is None
+    assert set(f.counters()) == set(COUNTER_NAMES) and not any(f.counters().values())
+    with pytest.raises(FilterStateError):
+        f.state()
+    with pytest.raises(MeasurementTypeError):
+        f.process("IMU 1 2 3")
+    with pytest.raises(FilterStateError):
+        TrackFilter(db, {"gate_prob_gps": 0.99})
+    u = f.process(InitMeas(10.0, 100.0, 0.0, None, direction=1))
+    assert u.outcome == Outcome.INITIALISED
+    e = f.estimate()
+    assert e.line_id == db.default_line_id and e.status == FilterStatus.NOMINAL and e.direction == 1
+    assert e.interval_low_m < 100.0 < e.interval_high_m
+    assert e.interval_high_m - 100.0 == pytest.approx(1.959964 * e.sigma_s_m, rel=1e-6)
+    lat, lon = db.line(db.default_line_id).latlon_at(100.0)
+    assert (e.lat_deg, e.lon_deg) == pytest.approx((float(lat), float(lon)), abs=1e-9)
+
+
+def test_nominal_accuracy_and_consistency(db):
+    """Monte Carlo over 8 seeds on the synthetic network: along-track error and interval coverage."""
+    cfg = filter_config_for()
+    errs, inside = [], []
+    for seed in range(8):
+        run = generate(db, 1, 400.0, IMU, ODO, GPS, seed=100 + seed)
+        res = batch.replay(db, cfg, run.measurements)
+        idx = np.clip(np.round((res.epoch_s - run.t_s[0]) * IMU.rate_hz).astype(int), 0, run.t_s.size - 1)
+        e = res.arc_length_m - run.s_m[idx]
+        errs.append(np.abs(e))
+        inside.append(np.abs(e) <= 1.96 * res.sigma_s_m)
+        assert np.all(res.status[1:] != FilterStatus.LOST)
+        x, P = res.x, res.P
+        np.linalg.cholesky(P)
+        assert np.all(np.isfinite(x))
+        assert abs(x[3] - run.odo_scale) < 3e-3  # odometer scale calibrated
+    a = np.concatenate(errs)
+    coverage = float(np.mean(np.concatenate(inside)))
+    assert np.percentile(a, 95) < 1.5
+    assert 0.90 <= coverage <= 0.995
+
+
+def test_junction_keeps_the_right_line(db):
+    """Train on the branch (line 2), initialised on the default line 1 before the junction."""
+    cfg = filter_config_for()
+    prof = Profile(segments=((15.0, 0.8), (200.0, 0.0)), v0_mps=0.0, s0_m=600.0)
+    run = generate(db, 2, 160.0, IMU, ODO, GPS, seed=31, profile=prof)
+    ms = [InitMeas(run.measurements[0].t_s, run.measurements[0].arc_length_m, 0.0, 1)] + run.measurements[1:]
+    f = TrackFilter(db, cfg)
+    lines = []
+    for m in ms:
+        f.process(m)
+        if isinstance(m, OdoMeas):
+            lines.append((m.t_s, f.estimate()))
+    junction_s = db.junctions()[0].s_b_m
+    after = [(t, e) for t, e in lines if e.epoch_s > run.t_s[0] + 10 and
+             run.s_m[int(round((t - run.t_s[0]) * 100))] > junction_s + 60.0]
+    assert after and all(e.line_id == 2 for _, e in after)
+    for t, e in after:
+        s_true = run.s_m[int(round((t - run.t_s[0]) * 100))]
+        assert abs(e.arc_length_m - s_true) < 3.0
+    # the same start on the main line stays on the main line
+    run1 = generate(db, 1, 160.0, IMU, ODO, GPS, seed=31, profile=prof)
+    f1 = TrackFilter(db, cfg)
+    for m in run1.measurements:
+        f1.process(m)
+    assert f1.estimate().line_id == 1 and abs(f1.estimate().arc_length_m - run1.s_m[-1]) < 3.0
+
+
+def test_unknown_direction_is_resolved_by_gnss(db):
+    cfg = filter_config_for()
+    run = generate(db, 1, 60.0, IMU, ODO, GPS, seed=32)
+    first = run.measurements[0]
+    ms = [InitMeas(first.t_s, first.arc_length_m, first.speed_mps, first.line_id, direction=None)]
+    f = TrackFilter(db, cfg)
+    assert f.process(ms[0]).outcome == Outcome.INITIALISED
+    assert f.estimate().hypotheses == 2 and f.estimate().direction == 0
+    for m in run.measurements[1:]:
+        f.process(m)
+    e = f.estimate()
+    assert e.direction == 1 and e.hypotheses == 1 and abs(e.arc_length_m - run.s_m[-1]) < 2.0
+
+
+def test_reinitialisation_keeps_calibration(db):
+    cfg = filter_config_for()
+    run = generate(db, 1, 200.0, IMU, ODO, GPS, seed=33)
+    f = TrackFilter(db, cfg)
+    for m in run.measurements:
+        f.process(m)
+    x0, P0 = f.state()
+    t = run.measurements[-1].t_s
+    assert f.process(InitMeas(t, 5000.0, 3.0, 1, direction=1)).outcome == Outcome.INITIALISED
+    x1, P1 = f.state()
+    assert x1[0] == 5000.0 and x1[1] == 3.0
+    assert x1[3] == x0[3] and P1[3, 3] == P0[3, 3]  # odometer scale kept
+    assert f.counters()["initialisations"] == 2
