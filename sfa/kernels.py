@@ -308,21 +308,27 @@ def _predict_step(x, P, aux, cfg, ts, tg, h, imu_ok):
     x[V] += a * h
     x[GE] *= phi
     x[GN] *= phi
-    # F = df/dx
-    F = np.eye(NX)
-    F[S, V] = h
+    # F = df/dx = I except F[S,V] = h, F[S,BA] = -d h^2/2, F[V,BA] = -d h, F[S,MY] = -d h^2 f_y/2,
+    # F[V,MY] = -d h f_y, F[S,SF] = -d h^2 f_x/2, F[V,SF] = -d h f_x, F[GE,GE] = F[GN,GN] = phi.
+    # P = F P F' + Q, with F's sparsity written out (rows, then columns)
     if imu_ok:
-        F[S, BA] = -0.5 * d * h * h
-        F[V, BA] = -d * h
-        F[S, MY] = -0.5 * d * h * h * fy
-        F[V, MY] = -d * h * fy
-        F[S, SF] = -0.5 * d * h * h * fx
-        F[V, SF] = -d * h * fx
-    F[GE, GE] = phi
-    F[GN, GN] = phi
-    # P = F P F' + Q
-    FP = F @ P
-    P[:, :] = FP @ F.T
+        fsb, fvb = -0.5 * d * h * h, -d * h
+    else:
+        fsb, fvb = 0.0, 0.0
+    fsm, fvm = fsb * fy, fvb * fy
+    fss, fvs = fsb * fx, fvb * fx
+    for j in range(NX):  # A = F P (rows S, V, GE, GN change)
+        ps, pv = P[S, j], P[V, j]
+        P[S, j] = ps + h * pv + fsb * P[BA, j] + fsm * P[MY, j] + fss * P[SF, j]
+        P[V, j] = pv + fvb * P[BA, j] + fvm * P[MY, j] + fvs * P[SF, j]
+        P[GE, j] *= phi
+        P[GN, j] *= phi
+    for i in range(NX):  # P = A F' (columns S, V, GE, GN change)
+        a_s, a_v = P[i, S], P[i, V]
+        P[i, S] = a_s + h * a_v + fsb * P[i, BA] + fsm * P[i, MY] + fss * P[i, SF]
+        P[i, V] = a_v + fvb * P[i, BA] + fvm * P[i, MY] + fvs * P[i, SF]
+        P[i, GE] *= phi
+        P[i, GN] *= phi
     P[S, S] += q * h * h * h / 3.0  # Q of white acceleration noise, PSD q [m^2/s^3]
     P[S, V] += q * h * h / 2.0
     P[V, S] += q * h * h / 2.0
