@@ -28,6 +28,7 @@ from tools.faults.config import Impairments
 from tools.faults.forge import flip_bits, forge_invalid, forge_valid, garbage, truncate
 
 FORGE_SENDER = ("forge", 0)  #: sender key of injected datagrams that do not pose as a real sender
+FAULT_SENDER_ADDR = ("127.0.0.1", 40999)  #: where the replay path says such datagrams come from
 _EPS_S = 1e-6  #: spacing of datagrams emitted together, keeping their order on an ordered link [s]
 
 Emit = tuple[float, bytes, Hashable]
@@ -38,7 +39,7 @@ COUNTERS = (
     "truncated", "duplicated", "reordered", "reorder_expired", "replayed", "forged_valid",
     "forged_invalid", "garbage", "replies_received", "replies_forwarded", "replies_dropped_blackout",
     "replies_dropped_loss", "replies_duplicated", "replies_bitflipped", "replies_truncated",
-    "senders_evicted", "emitted",
+    "senders_evicted", "emitted", "leading_drops",
 )
 
 
@@ -47,6 +48,8 @@ class _Sender:
     last_send: float = -math.inf  #: send time of the newest datagram emitted for this sender
     held: tuple[bytes, float] | None = None  #: (datagram, deadline) held for a reorder
     history: deque = field(default_factory=deque)  #: earlier datagrams, for replays
+    forwarded: bool = False  #: whether any datagram of this sender went out yet
+    drops_since_forward: int = 0  #: datagrams dropped since the last one that went out
 
 
 class FaultCore:
@@ -101,6 +104,8 @@ class FaultCore:
 
     def _emit(self, out: list[Emit], t: float, data: bytes, sender: Hashable, st: _Sender | None) -> float:
         if st is not None:
+            st.forwarded = True
+            st.drops_since_forward = 0
             t = max(t, st.last_send + _EPS_S)
             st.last_send = t
         out.append((t, data, sender))
@@ -118,16 +123,13 @@ class FaultCore:
         if st.held is not None and st.held[1] <= now:  # a reorder hold that expired unnoticed
             out.extend(self._release_expired(sender, st, st.held[1]))
         if self.in_blackout(now):
-            c["dropped_blackout"] += 1
-            return out
+            return self._drop(st, "dropped_blackout", out)
         if imp.ge_p_good_bad > 0.0:
             self._bad = rng.random() < (1.0 - imp.ge_p_bad_good if self._bad else imp.ge_p_good_bad)
             if rng.random() < (imp.ge_loss_bad if self._bad else imp.ge_loss_good):
-                c["dropped_burst"] += 1
-                return out
+                return self._drop(st, "dropped_burst", out)
         if imp.loss > 0.0 and rng.random() < imp.loss:
-            c["dropped_loss"] += 1
-            return out
+            return self._drop(st, "dropped_loss", out)
         original = bytes(data)
         payload = original
         if imp.bitflip > 0.0 and rng.random() < imp.bitflip:
@@ -157,6 +159,14 @@ class FaultCore:
             self._emit(out, t, old, sender, st)
         if imp.replay > 0.0:
             st.history.append(original)
+        return out
+
+    def _drop(self, st: _Sender, counter: str, out: list[Emit]) -> list[Emit]:
+        self.counters[counter] += 1
+        if st.forwarded:
+            st.drops_since_forward += 1
+        else:
+            self.counters["leading_drops"] += 1
         return out
 
     def _release_expired(self, sender: Hashable, st: _Sender, at: float) -> list[Emit]:
@@ -263,7 +273,10 @@ class FaultCore:
 
         Every received datagram is dropped (``dropped_*``), forwarded, or ``held`` now, so
         ``received == dropped_loss + dropped_burst + dropped_blackout + forwarded + held``.
+        ``leading_drops`` (before a sender's first datagram went out) and ``trailing_drops`` (after its
+        last one, so far) are the drops a receiver cannot see as gaps in the sequence numbers.
         """
         out = {name: int(self.counters.get(name, 0)) for name in COUNTERS}
         out["held"] = sum(1 for st in self._senders.values() if st.held is not None)
+        out["trailing_drops"] = sum(st.drops_since_forward for st in self._senders.values())
         return out

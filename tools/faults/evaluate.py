@@ -1,0 +1,199 @@
+"""From what a run observed to one row of the results table, with a PASS/FAIL per expectation.
+
+Both runners (replay path, live processes) fill an :class:`Observation`; :func:`evaluate` turns it
+into a flat row (strings and numbers only, ready for CSV/markdown/HTML). Definitions:
+
+- *fresh output*: an output the OBCU received whose SEQ is newer than every SEQ before it.
+- *error*: estimate minus truth interpolated at the estimate's epoch (``tools.accuracy``).
+- *losses*: drops on the input link a receiver can see (not before a sender's first datagram, not
+  after its last) versus the listener's ``sequencing.lost``; *duplicates*: duplicated + replayed
+  versus ``duplicates + late``; *reorders*: versus ``reordered``; *rejects*: datagrams that no
+  correct decoder accepts (forged-invalid, garbage, truncated) versus ``input.rejected``.
+- *age*: arrival at the OBCU minus the estimate's epoch (replay: exact, the capture clock is the
+  sensor clock; live: relative to the freshest output, the clocks being unrelated).
+- *recovery*: after a blackout ends, time until the link is UP again (output link) or until the
+  first fresh output (input link).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from tools.accuracy import accuracy
+
+
+@dataclass
+class Observation:
+    """What one run saw (times in seconds from the run start, sensor-time scale)."""
+
+    name: str
+    mode: str
+    simulated_s: float
+    truth_epoch: np.ndarray
+    truth_arc: np.ndarray
+    start_epoch_s: float  #: sensor-set time of the scenario start [s]
+    fresh_arrival: np.ndarray  #: arrival of each fresh output, from the run start [s]
+    fresh_epoch: np.ndarray
+    fresh_arc: np.ndarray
+    fresh_lo: np.ndarray
+    fresh_hi: np.ndarray
+    fresh_age: np.ndarray  #: age of each fresh output [s]
+    fresh_reasons: list[tuple[str, ...]] | None  #: per fresh output (None: not observable)
+    metrics: dict[str, Any]  #: listener metrics at exit
+    link_transitions: list[tuple[float, str]]
+    input_proxy: dict[str, int]
+    output_proxy: dict[str, int]
+    input_blackouts: tuple[tuple[float, float], ...]
+    output_blackouts: tuple[tuple[float, float], ...]
+    sensor_fault_windows: list[tuple[float, float]]  #: (start_s, end_s) from the scenario start
+    crashes: int
+    crash_detail: str = ""
+    memory_growth_mb: float | None = None
+    latency_p99_ms: float | None = None
+    reasons_seen: set[str] = field(default_factory=set)  #: live: reasons from the metrics events
+    wall_s: float = 0.0
+    notes: list[str] = field(default_factory=list)
+    corruption: bool = False  #: bit flips on the input link (gaps then also come from rejects)
+
+
+def _fmt(x: float | None, digits: int = 2) -> str:
+    if x is None or (isinstance(x, float) and not math.isfinite(x)):
+        return "n/a"
+    return f"{x:.{digits}f}"
+
+
+def _timeline(transitions: list[tuple[float, str]], until_s: float) -> str:
+    parts = [f"{state}@{t:.1f}" for t, state in transitions if t <= until_s]
+    return " ".join(parts) if parts else "idle"
+
+
+def _recovery(obs: Observation) -> tuple[float | None, float | None]:
+    """(worst time to DEGRADED after an output-link blackout starts, worst time to recover) [s]."""
+    degraded: list[float] = []
+    recover: list[float] = []
+    for a, d in obs.output_blackouts:
+        to_deg = [t - a for t, s in obs.link_transitions if t >= a and s in ("degraded", "down")]
+        degraded.append(to_deg[0] if to_deg else math.inf)
+        ups = [t - (a + d) for t, s in obs.link_transitions if t >= a + d and s == "up"]
+        recover.append(ups[0] if ups else math.inf)
+    for a, d in obs.input_blackouts:
+        after = obs.fresh_arrival[obs.fresh_arrival >= a + d]
+        recover.append(float(after[0] - (a + d)) if after.size else math.inf)
+    return (max(degraded) if degraded else None), (max(recover) if recover else None)
+
+
+def evaluate(obs: Observation, expect: dict[str, Any]) -> dict[str, Any]:
+    """One results row: figures, then ``checks`` (PASS/FAIL per expectation) and ``verdict``."""
+    acc = accuracy(obs.fresh_epoch, obs.fresh_arc, obs.truth_epoch, obs.truth_arc, obs.fresh_lo, obs.fresh_hi)
+    seq = obs.metrics.get("sequencing", {})
+    inp = obs.metrics.get("input", {})
+    ip = obs.input_proxy
+    row: dict[str, Any] = {
+        "scenario": obs.name,
+        "mode": obs.mode,
+        "sim_s": round(obs.simulated_s, 1),
+        "crashes": obs.crashes,
+        "fresh_outputs": int(obs.fresh_epoch.size),
+        "p95_m": _fmt(acc.p95_m),
+        "max_m": _fmt(acc.max_m),
+        "coverage": _fmt(acc.coverage, 4),
+    }
+    # sensor fault windows: coverage inside, reasons reported
+    fault_cov = None
+    reasons: set[str] = set(obs.reasons_seen)
+    if obs.sensor_fault_windows:
+        rel = obs.fresh_epoch - obs.start_epoch_s
+        mask = np.zeros(rel.size, dtype=bool)
+        for a, b in obs.sensor_fault_windows:
+            mask |= (rel >= a) & (rel < b)
+        if mask.any():
+            sub = accuracy(obs.fresh_epoch[mask], obs.fresh_arc[mask], obs.truth_epoch, obs.truth_arc,
+                           obs.fresh_lo[mask], obs.fresh_hi[mask])
+            fault_cov = sub.coverage
+        if obs.fresh_reasons is not None:
+            for i in np.flatnonzero(mask):
+                reasons.update(obs.fresh_reasons[i])
+    row["fault_coverage"] = _fmt(fault_cov, 4) if obs.sensor_fault_windows else "-"
+    row["reasons"] = " ".join(sorted(reasons - {"standstill"})) if obs.sensor_fault_windows else "-"
+    # injected versus detected
+    ip = {k: int(v) for k, v in obs.input_proxy.items()}
+    zero = dict.fromkeys(("dropped_loss", "dropped_burst", "dropped_blackout", "leading_drops",
+                          "trailing_drops",
+                          "forged_invalid", "garbage", "truncated", "duplicated", "replayed", "reordered",
+                          "bitflipped", "forged_valid"), 0)
+    ip = {**zero, **ip}  # no input proxy: nothing injected
+    visible = (ip["dropped_loss"] + ip["dropped_burst"] + ip["dropped_blackout"] - ip["leading_drops"]
+               - ip["trailing_drops"])
+    must_reject = ip["forged_invalid"] + ip["garbage"] + ip["truncated"]
+    rejected = int(inp.get("rejected", 0))
+    row.update({
+        "lost_inj": visible, "lost_det": int(seq.get("lost", 0)),
+        "dup_inj": ip["duplicated"] + ip["replayed"],
+        "dup_det": int(seq.get("duplicates", 0)) + int(seq.get("late", 0)),
+        "reord_inj": ip["reordered"], "reord_det": int(seq.get("reordered", 0)),
+        "rej_inj": must_reject, "rej_det": rejected,
+        "flips": ip["bitflipped"], "forged_valid": ip["forged_valid"],
+        "accepted_bad": max(0, must_reject - rejected),
+    })
+    age = obs.fresh_age[np.isfinite(obs.fresh_age)] if obs.fresh_age.size else obs.fresh_age
+    row["age_p99_s"] = _fmt(float(np.percentile(age, 99)) if age.size else None, 3)
+    row["age_max_s"] = _fmt(float(age.max()) if age.size else None, 3)
+    row["stale_fresh"] = int(np.sum(age > 1.0)) if age.size else 0
+    deg, rec = _recovery(obs)
+    row["degraded_after_s"] = _fmt(deg)
+    row["recover_s"] = _fmt(rec)
+    row["link_timeline"] = _timeline(obs.link_transitions, obs.simulated_s + 0.5)
+    row["memory_growth_mb"] = _fmt(obs.memory_growth_mb, 1)
+    row["latency_p99_ms"] = _fmt(obs.latency_p99_ms, 1)
+    row["wall_s"] = round(obs.wall_s, 1)
+    checks = _checks(row, obs, expect, acc, fault_cov, reasons, deg, rec)
+    row["checks"] = " ".join(f"{k}:{'PASS' if ok else 'FAIL'}" for k, ok in checks.items()) or "-"
+    row["verdict"] = "PASS" if all(checks.values()) else "FAIL"
+    row["notes"] = "; ".join(obs.notes)
+    return row
+
+
+def _checks(row, obs, expect, acc, fault_cov, reasons, deg, rec) -> dict[str, bool]:
+    out: dict[str, bool] = {"crashes": obs.crashes <= int(expect.get("crashes", 0))}
+    def le(value, bound):
+        return value is not None and math.isfinite(value) and value <= bound
+
+    def ge(value, bound):
+        return value is not None and math.isfinite(value) and value >= bound
+
+    if "p95_m" in expect:
+        out["p95_m"] = le(acc.p95_m, expect["p95_m"])
+    if "max_m" in expect:
+        out["max_m"] = le(acc.max_m, expect["max_m"])
+    if "coverage" in expect:
+        out["coverage"] = ge(acc.coverage, expect["coverage"])
+    if "fault_coverage" in expect:
+        out["fault_coverage"] = ge(fault_cov, expect["fault_coverage"])
+    if "losses_match" in expect:
+        out["losses_match"] = not obs.corruption and row["lost_inj"] == row["lost_det"]
+    if "duplicates_match" in expect:
+        out["duplicates_match"] = row["dup_inj"] == row["dup_det"]
+    if "reorders_match" in expect:
+        out["reorders_match"] = row["reord_inj"] == row["reord_det"]
+    if "rejected_match" in expect:
+        out["rejected_match"] = row["rej_det"] >= row["rej_inj"]
+    if "accepted_bad" in expect:
+        out["accepted_bad"] = row["accepted_bad"] <= expect["accepted_bad"]
+    if "max_fresh_age_s" in expect:
+        age = obs.fresh_age[np.isfinite(obs.fresh_age)]
+        out["max_fresh_age_s"] = bool(age.size) and float(age.max()) <= expect["max_fresh_age_s"]
+    if "degraded_within_s" in expect:
+        out["degraded_within_s"] = le(deg, expect["degraded_within_s"])
+    if "recover_within_s" in expect:
+        out["recover_within_s"] = le(rec, expect["recover_within_s"])
+    if "reasons" in expect:
+        out["reasons"] = bool(reasons & set(expect["reasons"]))
+    if "memory_growth_mb" in expect:
+        out["memory_growth_mb"] = le(obs.memory_growth_mb, expect["memory_growth_mb"])
+    if "latency_p99_ms" in expect:
+        out["latency_p99_ms"] = le(obs.latency_p99_ms, expect["latency_p99_ms"])
+    return out

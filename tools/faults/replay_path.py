@@ -1,0 +1,203 @@
+"""The replay path of a campaign: the whole system on scripted time, in one process.
+
+Offline-generated interface-module datagrams go through the input link's :class:`FaultCore` into the
+listener's :class:`~listener.pipeline.Pipeline`; its outputs go through the output link's core to a
+:class:`~listener.obcu.MockObcu` core, whose acks come back through the same link. Every component is
+sans-I/O, so this is a discrete-event simulation: one heap of timed deliveries plus the components'
+own timers, always advancing to the earliest. Same inputs and seeds, same trace, bit for bit.
+
+Nothing is mocked: it is the code ``sfa listen`` and ``sfa obcu`` run, on a clock that is an argument.
+"""
+
+from __future__ import annotations
+
+import heapq
+import math
+import time
+import traceback
+from dataclasses import dataclass, field
+from typing import Any
+
+from tools.faults.config import Impairments
+from tools.faults.core import FAULT_SENDER_ADDR, FaultCore
+from tools.faults.errors import CampaignError
+
+LISTENER_OUT_ADDR = ("127.0.0.1", 48002)  #: the listener's output socket, as the OBCU sees it
+MAX_EVENTS_PER_PACKET = 400  #: bound on loop iterations per input datagram (guards against a stuck timer)
+
+
+@dataclass
+class FreshOutput:
+    """One output the OBCU received with a SEQ newer than any before (a fresh estimate)."""
+
+    arrival_s: float  #: OBCU arrival time (listener clock = capture clock) [s]
+    seq: int
+    epoch_s: float  #: sensor-set time of the estimate [s]
+    arc_length_m: float
+    interval_low_m: float
+    interval_high_m: float
+    status: int  #: FilterStatus code (extended output)
+    reasons: tuple[str, ...]  #: the filter's reasons when the listener produced it
+
+
+@dataclass
+class Trace:
+    """Everything a replay-path run observed."""
+
+    start_s: float  #: time of the first datagram [s]
+    end_s: float  #: time the run stopped [s]
+    fresh: list[FreshOutput] = field(default_factory=list)
+    obcu_received: int = 0  #: outputs received, retransmissions and duplicates included
+    obcu_duplicates: int = 0
+    metrics: dict[str, Any] = field(default_factory=dict)  #: pipeline metrics at the end
+    link_transitions: list[tuple[float, str]] = field(default_factory=list)  #: (time from start, state)
+    input_proxy: dict[str, int] = field(default_factory=dict)
+    output_proxy: dict[str, int] = field(default_factory=dict)
+    obcu_stats: dict[str, Any] = field(default_factory=dict)
+    crash: str = ""  #: traceback of an exception, "" when none
+    wall_s: float = 0.0  #: wall time of the run [s]
+    events: int = 0  #: loop iterations
+
+
+def run_replay_path(
+    packets: list,
+    track,
+    listener_config,
+    *,
+    input_link: Impairments | None = None,
+    output_link: Impairments | None = None,
+    obcu_config=None,
+    seed: int = 0,
+    tail_s: float = 10.0,
+) -> Trace:
+    """Run ``packets`` (``Packet(arrival_s, src_port, payload)``, sorted) through the whole system.
+
+    ``seed`` seeds both links' cores (the output link's with ``seed + 1``). The run ends ``tail_s``
+    after the last datagram (or once the listener stopped and ``tail_s`` passed). An exception in any
+    component ends the run; its traceback is in ``Trace.crash`` (the campaign counts it as a crash).
+    """
+    from listener.obcu import MockObcu, ObcuConfig
+    from listener.pipeline import Pipeline
+
+    if not packets:
+        raise CampaignError("replay path: no datagrams to run")
+    t0 = float(packets[0].arrival_s)
+    t_last = float(packets[-1].arrival_s)
+    trace = Trace(start_s=t0, end_s=t0)
+    wall0 = time.perf_counter()
+    pipe = Pipeline(track, listener_config)
+    obcu = MockObcu(obcu_config or ObcuConfig(), start=t0)
+    in_core = FaultCore(input_link, seed, start=t0) if input_link is not None else None
+    out_core = FaultCore(output_link, seed + 1, start=t0) if output_link is not None else None
+    heap: list[tuple[float, int, str, bytes, Any]] = []
+    order = 0
+
+    def push(t: float, kind: str, data: bytes, addr: Any) -> None:
+        nonlocal order
+        order += 1
+        heapq.heappush(heap, (t, order, kind, data, addr))
+
+    for p in packets:
+        push(float(p.arrival_s), "sim", p.payload, ("127.0.0.1", int(p.src_port)))
+
+    def to_listener(emits) -> None:
+        for t, data, sender in emits:
+            push(t, "in", data, FAULT_SENDER_ADDR if sender[0] == "forge" else sender)
+
+    def outputs(datagrams: list[bytes], now: float) -> None:
+        for d in datagrams:
+            if out_core is None:
+                push(now, "obcu", d, LISTENER_OUT_ADDR)
+            else:
+                for t, data, _ in out_core.forward(d, LISTENER_OUT_ADDR, now):
+                    push(t, "obcu", data, LISTENER_OUT_ADDR)
+
+    def on_obcu(data: bytes, now: float) -> None:
+        rec = obcu.receive(data, LISTENER_OUT_ADDR, now)
+        if rec is None:
+            return
+        trace.obcu_received += 1
+        if obcu.newest is rec:
+            est = pipe.last_estimate
+            reasons = tuple(est.reasons) if est is not None else ()
+            trace.fresh.append(FreshOutput(
+                now, rec.seq, rec.epoch, rec.arc_length,
+                math.nan if rec.interval_low is None else rec.interval_low,
+                math.nan if rec.interval_high is None else rec.interval_high,
+                -1 if rec.status is None else int(rec.status), reasons,
+            ))
+
+    t_stop = t_last + tail_s
+    limit = MAX_EVENTS_PER_PACKET * len(packets) + 1_000_000
+    now = t0
+    try:
+        while trace.events < limit:
+            trace.events += 1
+            cands = [
+                (heap[0][0] if heap else math.inf, 0),
+                (_t(pipe.next_timer()), 1),
+                (_t(obcu.next_timer()), 2),
+                (_t(in_core.next_timer() if in_core else None), 3),
+                (_t(out_core.next_timer() if out_core else None), 4),
+            ]
+            t, which = min(cands)
+            if t == math.inf or t > t_stop:
+                break
+            now = max(now, t)
+            if which == 0:
+                _, _, kind, data, addr = heapq.heappop(heap)
+                if kind == "sim":
+                    if in_core is None:
+                        push(now, "in", data, addr)
+                    else:
+                        to_listener(in_core.forward(data, addr, now))
+                elif kind == "in":
+                    outputs(pipe.receive(data, addr, now), now)
+                elif kind == "obcu":
+                    on_obcu(data, now)
+                else:  # "ack"
+                    outputs(pipe.receive_ack(data, now), now)
+            elif which == 1:
+                outputs(pipe.handle_timer(now), now)
+            elif which == 2:
+                for ack, _addr in obcu.handle_timer(now):
+                    if out_core is None:
+                        push(now, "ack", ack, None)
+                    else:
+                        for ta, data, _ in out_core.reply(ack, LISTENER_OUT_ADDR, now):
+                            push(ta, "ack", data, None)
+                if obcu.next_timer() is not None and obcu.next_timer() <= now:
+                    break  # pragma: no cover - the mock always moves its timer forward
+            elif which == 3:
+                assert in_core is not None
+                to_listener(in_core.handle_timer(now))
+            else:
+                assert out_core is not None
+                for tt, data, _ in out_core.handle_timer(now):
+                    push(tt, "obcu", data, LISTENER_OUT_ADDR)
+        else:
+            raise CampaignError(f"replay path: no end after {limit} events (a timer does not advance)")
+        outputs(pipe.flush(now), now)
+        while heap:
+            t, _, kind, data, addr = heapq.heappop(heap)
+            if kind == "obcu":
+                on_obcu(data, max(now, t))
+    except CampaignError:
+        raise
+    except Exception:  # a crash of the system under test is a result, not an error of the tool
+        trace.crash = traceback.format_exc()
+    trace.end_s = now
+    trace.metrics = pipe.metrics()
+    trace.link_transitions = [(t - t0, s) for t, s in pipe.link.transitions]
+    trace.input_proxy = in_core.stats() if in_core else {}
+    trace.output_proxy = out_core.stats() if out_core else {}
+    st = obcu.stats
+    trace.obcu_duplicates = st.duplicates
+    trace.obcu_stats = {"received": st.received, "malformed": st.malformed, "duplicates": st.duplicates,
+                        "acks_sent": st.acks_sent, "acks_dropped": st.acks_dropped, "restarts": st.restarts}
+    trace.wall_s = time.perf_counter() - wall0
+    return trace
+
+
+def _t(value: float | None) -> float:
+    return math.inf if value is None else float(value)
