@@ -146,7 +146,7 @@ def _run_campaign(args: argparse.Namespace) -> int:
 
     rows = run_campaign(campaign, args.mode, args.out, jobs=args.jobs, executor=args.executor,
                         scheduler=args.scheduler, only=args.only, progress=progress)
-    bad = [r["scenario"] for r in rows if r.get("verdict") != "PASS"]
+    bad = [r["scenario"] for r in rows if r.get("verdict") not in ("PASS", "SKIP")]
     print(f"results: {args.out}/results.md, .csv, .html; {len(rows) - len(bad)}/{len(rows)} PASS"
           + (f"; not passing: {', '.join(bad)}" if bad else ""), file=sys.stderr)
     return 0 if not bad else 1

@@ -18,6 +18,7 @@ import numpy as np
 
 from tools.faults.errors import CampaignError
 from tools.faults.evaluate import Observation, evaluate
+from tools.faults.netns import NetnsUnavailable
 from tools.faults.spec import ScenarioSpec
 
 
@@ -131,6 +132,9 @@ def run_scenario(spec: ScenarioSpec, mode: str, out_dir: str) -> dict[str, Any]:
             raise CampaignError(f"unknown mode {mode!r} (replay or live)")
         obs.wall_s = time.perf_counter() - t0
         row = evaluate(obs, spec.expect)
+    except NetnsUnavailable as exc:
+        row = {"scenario": spec.name, "mode": mode + "+netns", "verdict": "SKIP", "notes": str(exc),
+               "wall_s": round(time.perf_counter() - t0, 1)}
     except Exception as exc:  # the harness failed: report it in the table, keep the campaign going
         (out / "error.txt").write_text(traceback.format_exc())
         row = {"scenario": spec.name, "mode": mode, "verdict": "ERROR",

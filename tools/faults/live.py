@@ -1,0 +1,313 @@
+"""Live mode of a campaign: real processes on loopback (as ``sfa demo`` runs them, plus fault proxies).
+
+    sfa sim --live --speed X -> [sfa faults proxy: input link] -> sfa listen -> [sfa faults proxy:
+    output link] -> sfa obcu                       (acks come back through the output-link proxy)
+
+Order: the listener first (its READY can take a while: the filter compiles), then the OBCU, the
+proxies and the simulator, so the OBCU's misbehaviour windows and the proxies' blackout windows (both
+measured from their start / first datagram, in wall seconds) line up with the start of the run.
+Every process writes JSON lines on stderr; they are kept in ``out/<scenario>/*.log``. The listener's
+resident memory is sampled from ``/proc`` while the run lasts.
+
+Times in live mode are wall seconds: run blackout scenarios at ``speed = 1`` so that the link
+timeouts (wall clock) and the windows mean the same as on the replay path.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import socket
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+
+import numpy as np
+
+from tools.faults.errors import CampaignError
+from tools.faults.evaluate import Observation
+from tools.faults.spec import ScenarioSpec
+from tools.faults.tomlwrite import dumps
+
+READY_TIMEOUT_S = 300.0  #: longest wait for the listener's READY (numba compiles on a cold cache) [s]
+
+
+def free_udp_port(host: str = "127.0.0.1") -> int:
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+        s.bind((host, 0))
+        return int(s.getsockname()[1])
+
+
+class LogReader(threading.Thread):
+    """Copies a child's stderr to a file and keeps its JSON events (with the monotonic time read)."""
+
+    def __init__(self, stream, sink: Path) -> None:
+        super().__init__(daemon=True)
+        self._stream = stream
+        self._sink = sink
+        self.events: list[tuple[float, dict]] = []
+        self.ready = threading.Event()
+        self.traceback = False
+
+    def run(self) -> None:
+        with open(self._sink, "w") as fh:
+            for line in self._stream:
+                fh.write(line)
+                fh.flush()
+                if line.startswith("Traceback"):
+                    self.traceback = True
+                text = line.strip()
+                if not text.startswith("{"):
+                    continue
+                try:
+                    ev = json.loads(text)
+                except json.JSONDecodeError:
+                    continue
+                if not isinstance(ev, dict):
+                    continue
+                self.events.append((time.monotonic(), ev))
+                if ev.get("event") in ("ready", "obcu_ready", "proxy_ready"):
+                    self.ready.set()
+
+    def last(self, kind: str) -> dict | None:
+        for _, ev in reversed(self.events):
+            if ev.get("event") == kind:
+                return ev
+        return None
+
+
+def _sfa(*args: str) -> list[str]:
+    return [sys.executable, "-m", "sfa", *args]
+
+
+def rss_mb(pid: int) -> float | None:
+    """Resident set size of a process [MB] (None where /proc is not readable)."""
+    try:
+        with open(f"/proc/{pid}/status") as fh:
+            for line in fh:
+                if line.startswith("VmRSS:"):
+                    return int(line.split()[1]) / 1024.0
+    except OSError:
+        return None
+    return None
+
+
+def _windows_args(flag: str, windows) -> list[str]:
+    out: list[str] = []
+    for a, d in windows:
+        out += [flag, f"{a}:{d}"]
+    return out
+
+
+def read_obcu_csv(path: Path) -> dict[str, np.ndarray]:
+    import csv
+
+    cols: dict[str, list[float]] = {k: [] for k in ("time_s", "seq", "epoch", "arc_length", "lo", "hi")}
+    if path.exists():
+        with open(path, newline="") as fh:
+            for row in csv.DictReader(fh):
+                try:
+                    vals = (float(row["time_s"]), float(row["seq"]), float(row["epoch"]),
+                            float(row["arc_length"]),
+                            float(row["interval_low"]) if row.get("interval_low") else math.nan,
+                            float(row["interval_high"]) if row.get("interval_high") else math.nan)
+                except (KeyError, ValueError, TypeError):
+                    continue  # a partly written last line
+                for key, v in zip(cols, vals, strict=True):
+                    cols[key].append(v)
+    return {k: np.array(v, dtype=float) for k, v in cols.items()}
+
+
+def fresh_mask(seq: np.ndarray) -> np.ndarray:
+    """Which received outputs carry a SEQ newer (serial order) than every one before."""
+    from listener.serial import serial_gt
+
+    mask = np.zeros(seq.size, dtype=bool)
+    newest = None
+    for i, s in enumerate(seq.astype(int)):
+        if newest is None or serial_gt(int(s), newest):
+            newest = int(s)
+            mask[i] = True
+    return mask
+
+
+def _terminate(procs: list[subprocess.Popen]) -> None:
+    for p in procs:
+        if p.poll() is None:
+            p.terminate()
+    deadline = time.monotonic() + 10.0
+    for p in procs:
+        try:
+            p.wait(timeout=max(0.1, deadline - time.monotonic()))
+        except subprocess.TimeoutExpired:
+            p.kill()
+            p.wait(timeout=5.0)
+
+
+def run_live(spec: ScenarioSpec, out: Path) -> Observation:
+    """Run ``spec`` with real processes on loopback and return what was observed."""
+    from interface_modules.offline import generate
+    from interface_modules.tracks import database_path
+    from tools.faults.netns import Namespace
+    from tools.faults.runner import build_scenario, fault_windows, listener_config
+
+    sc = build_scenario(spec)
+    track_path = database_path(sc)
+    if track_path is None:
+        raise CampaignError(f"{spec.name}: synthetic tracks have no database the listener can open")
+    sim = generate(sc)  # the truth the live senders follow (same scenario, same seed)
+    scenario_file = out / "scenario.toml"
+    scenario_file.write_text(dumps(spec.scenario_dict()))
+    links = {}
+    if spec.input_link is not None:
+        links["input_link"] = spec.input_link.as_dict()
+    if spec.output_link is not None:
+        links["output_link"] = spec.output_link.as_dict()
+    (out / "links.toml").write_text(dumps(links))
+    _, overrides = listener_config(spec, sc, track_path)
+
+    ns = Namespace.create(spec) if spec.netns else None
+    host = "127.0.0.1"
+    listen_host = ns.inner_addr if ns else host
+    obcu_host = ns.outer_addr if ns else host
+    listen_port = free_udp_port()
+    obcu_port = free_udp_port(obcu_host)
+    in_proxy_port = free_udp_port()
+    out_proxy_port = free_udp_port(obcu_host) if spec.output_link is not None else None
+    env = dict(os.environ, PYTHONUNBUFFERED="1")
+    procs: list[subprocess.Popen] = []
+    readers: dict[str, LogReader] = {}
+    rss: list[tuple[float, float]] = []
+    notes: list[str] = []
+
+    def start(name: str, argv: list[str]) -> subprocess.Popen:
+        p = subprocess.Popen(argv, stderr=subprocess.PIPE, stdout=subprocess.DEVNULL, text=True, env=env)
+        procs.append(p)
+        reader = LogReader(p.stderr, out / f"{name}.log")
+        reader.start()
+        readers[name] = reader
+        return p
+
+    def wait_ready(name: str, p: subprocess.Popen, timeout_s: float) -> None:
+        t = time.monotonic()
+        while not readers[name].ready.wait(0.1):
+            if p.poll() is not None:
+                raise CampaignError(f"{spec.name}: {name} exited with status {p.returncode} before READY "
+                                    f"(see {out / (name + '.log')})")
+            if time.monotonic() - t > timeout_s:
+                raise CampaignError(f"{spec.name}: {name} not ready after {timeout_s:.0f} s")
+
+    try:
+        obcu_target = f"{obcu_host}:{out_proxy_port or obcu_port}"
+        listen_argv = _sfa("listen", "--bind", listen_host, "--port", str(listen_port), "--obcu", obcu_target,
+                           "--set", "log.metrics_interval_s=1", *[a for o in overrides for a in ("--set", o)])
+        listener = start("listener", ns.wrap(listen_argv) if ns else listen_argv)
+        wait_ready("listener", listener, READY_TIMEOUT_S)
+        listener_pid = ns.child_pid(listener.pid) if ns else listener.pid
+        obcu = start("obcu", _sfa("obcu", "--bind", obcu_host, "--port", str(obcu_port), "--csv",
+                                  str(out / "obcu.csv"), "--quiet", "--idle-exit", "10",
+                                  *_windows_args("--drop-acks", spec.obcu.drop_acks),
+                                  *_windows_args("--silent", spec.obcu.silent),
+                                  *[a for t in spec.obcu.restart_at_s for a in ("--restart-at", str(t))]))
+        wait_ready("obcu", obcu, 60.0)
+        target = f"{listen_host}:{listen_port}"
+        if spec.input_link is not None and ns is None:  # in a namespace, netem impairs the input link
+            p = start("proxy_in", _sfa("faults", "proxy", "--listen", f"{host}:{in_proxy_port}", "--forward",
+                                       target, "--profile", str(out / "links.toml"), "--table", "input_link",
+                                       "--seed", str(spec.seed), "--idle-exit", "15"))
+            wait_ready("proxy_in", p, 60.0)
+            target = f"{host}:{in_proxy_port}"
+        if spec.output_link is not None:
+            p = start("proxy_out", _sfa("faults", "proxy", "--listen", f"{obcu_host}:{out_proxy_port}",
+                                        "--forward", f"{obcu_host}:{obcu_port}", "--profile",
+                                        str(out / "links.toml"), "--table", "output_link",
+                                        "--seed", str(spec.seed + 1), "--idle-exit", "15"))
+            wait_ready("proxy_out", p, 60.0)
+        base_rss = rss_mb(listener_pid)
+        t_start = time.monotonic()
+        simp = subprocess.Popen(
+            _sfa("sim", str(scenario_file), "--live", "--target", target, "--speed", str(spec.speed),
+                 "--ephemeral-ports"),
+            stdout=subprocess.DEVNULL, stderr=open(out / "sim.log", "w"), env=env,  # noqa: SIM115
+        )
+        procs.append(simp)
+        budget = spec.duration_s / spec.speed + 90.0
+        while listener.poll() is None:
+            time.sleep(0.25)
+            value = rss_mb(listener_pid)
+            if value is not None:
+                rss.append((time.monotonic() - t_start, value))
+            if time.monotonic() - t_start > budget:
+                notes.append(f"listener still running {budget:.0f} s after the start: terminated")
+                listener.terminate()
+                break
+        listener.wait(timeout=30.0)
+        simp.wait(timeout=30.0)
+        time.sleep(1.0)  # the last outputs and acks
+        if ns is not None and ns.netem:
+            (out / "netem.txt").write_text(" ".join(ns.netem) + "\n" + ns.qdisc_stats())
+            notes.append(f"input link by netem: {' '.join(ns.netem)} (counters in netem.txt)")
+    finally:
+        _terminate(procs)
+        for r in readers.values():
+            r.join(timeout=5.0)
+        if ns:
+            ns.destroy()
+    crashes = 0
+    for name, reader in readers.items():
+        if reader.traceback:
+            crashes += 1
+            notes.append(f"{name}: traceback (see {name}.log)")
+    if listener.returncode not in (0, None) and not readers["listener"].traceback:
+        crashes += 1
+        notes.append(f"listener exit status {listener.returncode}")
+    lst = readers["listener"]
+    exit_ev = lst.last("exit") or lst.last("metrics") or {}
+    metrics = {k: v for k, v in exit_ev.items() if k in ("input", "sequencing", "clock", "merge", "filter",
+                                                          "link", "service")}
+    transitions = [(t - t_start, ev.get("state", "")) for t, ev in lst.events
+                   if ev.get("event") == "link_state" and t >= t_start]
+    reasons: set[str] = set()
+    for _, ev in lst.events:
+        if ev.get("event") == "metrics":
+            reasons.update(ev.get("filter", {}).get("reasons", []) or [])
+    est = read_obcu_csv(out / "obcu.csv")
+    mask = fresh_mask(est["seq"])
+    t_arr, epoch = est["time_s"][mask], est["epoch"][mask]
+    if t_arr.size:
+        lag = t_arr - (epoch - epoch[0]) / spec.speed  # wall seconds, up to a constant
+        age = lag - lag.min()
+    else:
+        age = np.array([])
+    proxies = {}
+    for name in ("proxy_in", "proxy_out"):
+        ev = readers[name].last("proxy_exit") if name in readers else None
+        proxies[name] = {k: v for k, v in (ev or {}).items() if k != "event" and isinstance(v, int)}
+        if name in readers and ev is None:
+            notes.append(f"{name}: no exit counters")
+    growth = None
+    if base_rss is not None and rss:
+        growth = max(v for _, v in rss) - base_rss
+    obs = Observation(
+        name=spec.name, mode="live" + ("+netns" if ns else ""), simulated_s=float(sim.duration_s),
+        truth_epoch=np.asarray(sim.truth["epoch"], float),
+        truth_arc=np.asarray(sim.truth["arc_length"], float),
+        start_epoch_s=sc.start_epoch_s,
+        fresh_arrival=t_arr - (t_arr[0] if t_arr.size else 0.0), fresh_epoch=epoch,
+        fresh_arc=est["arc_length"][mask], fresh_lo=est["lo"][mask], fresh_hi=est["hi"][mask],
+        fresh_age=age, fresh_reasons=None, metrics=metrics, link_transitions=transitions,
+        input_proxy=proxies["proxy_in"], output_proxy=proxies["proxy_out"],
+        input_blackouts=spec.input_link.blackouts if spec.input_link else (),
+        output_blackouts=spec.output_link.blackouts if spec.output_link else (),
+        sensor_fault_windows=fault_windows(sc, sim), crashes=crashes,
+        memory_growth_mb=growth, latency_p99_ms=float(np.percentile(age, 99) * 1000.0) if age.size else None,
+        reasons_seen=reasons, notes=notes,
+        corruption=bool(spec.input_link and (spec.input_link.bitflip > 0 or spec.input_link.forge_on_stream)),
+    )
+    (out / "live.json").write_text(json.dumps({"metrics": metrics, "proxies": proxies, "rss_mb": rss[-50:],
+                                               "base_rss_mb": base_rss}, indent=1, default=str))
+    return obs
+
