@@ -46,7 +46,7 @@ COUNTERS = (
 @dataclass
 class _Sender:
     last_send: float = -math.inf  #: send time of the newest datagram emitted for this sender
-    held: tuple[bytes, float] | None = None  #: (datagram, deadline) held for a reorder
+    held: tuple[bytes, float, bool] | None = None  #: (datagram, deadline, valid) held for a reorder
     history: deque = field(default_factory=deque)  #: earlier datagrams, for replays
     forwarded: bool = False  #: whether any datagram of this sender went out yet
     drops_since_forward: int = 0  #: datagrams dropped since the last one that went out
@@ -102,10 +102,12 @@ class FaultCore:
             self._senders.move_to_end(key)
         return st
 
-    def _emit(self, out: list[Emit], t: float, data: bytes, sender: Hashable, st: _Sender | None) -> float:
+    def _emit(self, out: list[Emit], t: float, data: bytes, sender: Hashable, st: _Sender | None,
+              valid: bool = True) -> float:
         if st is not None:
-            st.forwarded = True
-            st.drops_since_forward = 0
+            if valid:
+                st.forwarded = True
+                st.drops_since_forward = 0
             t = max(t, st.last_send + _EPS_S)
             st.last_send = t
         out.append((t, data, sender))
@@ -138,21 +140,24 @@ class FaultCore:
         if imp.truncate > 0.0 and rng.random() < imp.truncate:
             payload = truncate(rng, payload)
             c["truncated"] += 1
+        valid = len(payload) == len(original)
+        if not valid:  # truncated: always rejected, so for the receiver's sequence it is a gap
+            self._gap(st)
         t = now + imp.delay_s + (rng.uniform(0.0, imp.jitter_s) if imp.jitter_s > 0.0 else 0.0)
         if st.held is None and imp.reorder > 0.0 and rng.random() < imp.reorder:
-            st.held = (payload, now + imp.reorder_max_s)
+            st.held = (payload, now + imp.reorder_max_s, valid)
         else:
             c["forwarded"] += 1
-            t = self._emit(out, t, payload, sender, st)
+            t = self._emit(out, t, payload, sender, st, valid)
             if st.held is not None:  # the held datagram goes out right behind this one: a reorder
-                held, _ = st.held
+                held, _, held_valid = st.held
                 st.held = None
                 c["forwarded"] += 1
                 c["reordered"] += 1
-                t = self._emit(out, t, held, sender, st)
+                t = self._emit(out, t, held, sender, st, held_valid)
             if imp.duplicate > 0.0 and rng.random() < imp.duplicate:
                 c["duplicated"] += 1
-                t = self._emit(out, t + imp.duplicate_gap_s, payload, sender, st)
+                t = self._emit(out, t + imp.duplicate_gap_s, payload, sender, st, valid)
         if imp.replay > 0.0 and st.history and rng.random() < imp.replay:
             old = st.history[int(rng.integers(0, len(st.history)))]
             c["replayed"] += 1
@@ -163,20 +168,24 @@ class FaultCore:
 
     def _drop(self, st: _Sender, counter: str, out: list[Emit]) -> list[Emit]:
         self.counters[counter] += 1
+        self._gap(st)
+        return out
+
+    def _gap(self, st: _Sender) -> None:
+        """A datagram of ``st`` the receiver will not accept: leading, or pending as trailing."""
         if st.forwarded:
             st.drops_since_forward += 1
         else:
             self.counters["leading_drops"] += 1
-        return out
 
     def _release_expired(self, sender: Hashable, st: _Sender, at: float) -> list[Emit]:
         assert st.held is not None
-        held, _ = st.held
+        held, _, valid = st.held
         st.held = None
         self.counters["forwarded"] += 1
         self.counters["reorder_expired"] += 1
         out: list[Emit] = []
-        self._emit(out, at, held, sender, st)
+        self._emit(out, at, held, sender, st, valid)
         return out
 
     # ------------------------------------------------------------------ upstream -> client
@@ -273,8 +282,9 @@ class FaultCore:
 
         Every received datagram is dropped (``dropped_*``), forwarded, or ``held`` now, so
         ``received == dropped_loss + dropped_burst + dropped_blackout + forwarded + held``.
-        ``leading_drops`` (before a sender's first datagram went out) and ``trailing_drops`` (after its
-        last one, so far) are the drops a receiver cannot see as gaps in the sequence numbers.
+        ``leading_drops`` (before a sender's first valid datagram went out) and ``trailing_drops`` (after
+        its last one, so far) are the drops a receiver cannot see as gaps in the sequence numbers; a
+        truncated datagram (always rejected) counts as a drop for these two.
         """
         out = {name: int(self.counters.get(name, 0)) for name in COUNTERS}
         out["held"] = sum(1 for st in self._senders.values() if st.held is not None)

@@ -5,10 +5,11 @@ into a flat row (strings and numbers only, ready for CSV/markdown/HTML). Definit
 
 - *fresh output*: an output the OBCU received whose SEQ is newer than every SEQ before it.
 - *error*: estimate minus truth interpolated at the estimate's epoch (``tools.accuracy``).
-- *losses*: drops on the input link a receiver can see (not before a sender's first datagram, not
-  after its last) versus the listener's ``sequencing.lost``; *duplicates*: duplicated + replayed
-  versus ``duplicates + late``; *reorders*: versus ``reordered``; *rejects*: datagrams that no
-  correct decoder accepts (forged-invalid, garbage, truncated) versus ``input.rejected``.
+- *losses*: drops (and truncations, always rejected) on the input link a receiver can see (not before
+  a sender's first datagram, not after its last) versus the listener's ``sequencing.lost``;
+  *duplicates*: duplicated + replayed versus ``duplicates + late``; *reorders*: versus
+  ``reordered``; *rejects*: datagrams that no correct decoder accepts (forged-invalid, garbage,
+  truncated) versus ``input.rejected``.
 - *age*: arrival at the OBCU minus the estimate's epoch (replay: exact, the capture clock is the
   sensor clock; live: relative to the freshest output, the clocks being unrelated).
 - *recovery*: after a blackout ends, time until the link is UP again (output link) or until the
@@ -126,8 +127,8 @@ def evaluate(obs: Observation, expect: dict[str, Any]) -> dict[str, Any]:
                           "forged_invalid", "garbage", "truncated", "duplicated", "replayed", "reordered",
                           "bitflipped", "forged_valid"), 0)
     ip = {**zero, **ip}  # no input proxy: nothing injected
-    visible = (ip["dropped_loss"] + ip["dropped_burst"] + ip["dropped_blackout"] - ip["leading_drops"]
-               - ip["trailing_drops"])
+    visible = (ip["dropped_loss"] + ip["dropped_burst"] + ip["dropped_blackout"] + ip["truncated"]
+               - ip["leading_drops"] - ip["trailing_drops"])
     must_reject = ip["forged_invalid"] + ip["garbage"] + ip["truncated"]
     rejected = int(inp.get("rejected", 0))
     row.update({

@@ -1,0 +1,230 @@
+"""Fault proxy core (sans-I/O): determinism, exact counting, each impairment's semantics, profiles."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from listener.codec import DecodeError, ImuSample, decode_input, encode_input
+from tools.faults.config import Impairments, impairments_from_dict, load_profile
+from tools.faults.core import FORGE_SENDER, FaultCore
+from tools.faults.errors import FaultConfigError
+from tools.faults.forge import flip_bits, forge_invalid, forge_valid, garbage, truncate
+
+A = ("127.0.0.1", 47001)
+B = ("127.0.0.1", 47002)
+
+
+def stream(n: int, dt: float = 0.01, senders=(A,)):
+    """n datagrams per sender, interleaved, (now, sender, seq, bytes)."""
+    out = []
+    for i in range(n):
+        for k, s in enumerate(senders):
+            msg = ImuSample(i & 0xFFFF, 0, 0, -9.81, 0, 0, 0)
+            out.append((i * dt + k * 1e-4, s, i & 0xFFFF, encode_input(msg)))
+    return out
+
+
+def drive(core: FaultCore, items, until: float | None = None):
+    """Feed items, run due timers between them; returns every emission in send-time order."""
+    out = []
+    for now, sender, _, data in items:
+        while (t := core.next_timer()) is not None and t <= now:
+            out += core.handle_timer(t)
+        out += core.forward(data, sender, now)
+    end = (items[-1][0] if items else 0.0) + 1.0 if until is None else until
+    for _ in range(100_000):
+        t = core.next_timer()
+        if t is None or t > end:
+            break
+        out += core.handle_timer(t)
+    return sorted(out, key=lambda e: e[0])
+
+
+def seqs_of(emits, sender):
+    return [int.from_bytes(d[1:3], "little") for _, d, s in emits if s == sender and len(d) >= 3]
+
+
+def test_same_seed_same_output_different_seed_different():
+    imp = Impairments(loss=0.2, reorder=0.05, duplicate=0.05, jitter_s=0.002, bitflip=0.01)
+    items = stream(2000)
+    a = drive(FaultCore(imp, seed=4), items)
+    b = drive(FaultCore(imp, seed=4), items)
+    c = drive(FaultCore(imp, seed=5), items)
+    assert a == b
+    assert a != c
+
+
+def test_counters_account_for_every_datagram():
+    imp = Impairments(loss=0.1, ge_p_good_bad=0.02, ge_p_bad_good=0.3, reorder=0.1, duplicate=0.03,
+                      blackouts=((3.0, 1.0),))
+    core = FaultCore(imp, seed=1)
+    emits = drive(core, stream(1000, senders=(A, B)))
+    st = core.stats()
+    assert st["received"] == 2000
+    assert st["received"] == (st["dropped_loss"] + st["dropped_burst"] + st["dropped_blackout"]
+                              + st["forwarded"] + st["held"])
+    assert st["held"] == 0
+    assert st["emitted"] == len(emits) == st["forwarded"] + st["duplicated"]
+    assert st["dropped_blackout"] == 200  # 1 s of 2 x 100 datagrams/s
+    assert 0.05 < st["dropped_loss"] / 2000 < 0.15
+
+
+def test_bernoulli_loss_rate_and_blackout_window():
+    core = FaultCore(Impairments(loss=0.2, blackouts=((10.0, 5.0),)), seed=3)
+    items = stream(3000)  # 30 s at 100 Hz
+    emits = drive(core, items)
+    times = np.array([t for t, _, _ in emits])
+    assert not np.any((times >= 10.0) & (times < 15.0))
+    st = core.stats()
+    assert st["dropped_blackout"] == 500
+    assert abs(st["dropped_loss"] / 2500 - 0.2) < 0.03
+
+
+def test_gilbert_elliott_losses_come_in_bursts():
+    """Same mean loss as Bernoulli, far longer runs of consecutive losses."""
+    def runs(core):
+        emits = drive(core, stream(20000))
+        got = set(seqs_of(emits, A))
+        lost = np.array([i not in got for i in range(20000)])
+        edges = np.flatnonzero(np.diff(np.r_[0, lost.astype(int), 0]))
+        lengths = edges[1::2] - edges[::2]
+        return lost.mean(), lengths.mean()
+
+    ge_rate, ge_len = runs(FaultCore(Impairments(ge_p_good_bad=0.02, ge_p_bad_good=0.2), seed=2))
+    expected = 0.02 / (0.02 + 0.2)  # stationary P(BAD), loss 1 in BAD
+    assert abs(ge_rate - expected) < 0.03
+    b_rate, b_len = runs(FaultCore(Impairments(loss=ge_rate), seed=2))
+    assert ge_len > 3.0 * b_len
+
+
+def test_reorder_swaps_with_the_next_datagram_of_the_same_sender():
+    core = FaultCore(Impairments(reorder=0.1), seed=8)
+    emits = drive(core, stream(3000))
+    seq = seqs_of(emits, A)
+    assert sorted(seq) == list(range(3000))  # nothing lost or duplicated
+    inversions = sum(1 for x, y in zip(seq, seq[1:], strict=False) if y < x)
+    assert inversions == core.stats()["reordered"] > 200
+    assert core.stats()["reorder_expired"] == 0  # 10 ms spacing < 20 ms hold
+
+
+def test_reorder_hold_expires_when_no_next_datagram_comes():
+    core = FaultCore(Impairments(reorder=1.0, reorder_max_s=0.02), seed=0)
+    assert core.forward(b"\x01\x00\x00\x00\x00", A, 0.0) == []
+    assert core.next_timer() == pytest.approx(0.02)
+    out = core.handle_timer(0.02)
+    assert out == [(pytest.approx(0.02), b"\x01\x00\x00\x00\x00", A)]
+    assert core.stats()["reorder_expired"] == 1 and core.stats()["reordered"] == 0
+
+
+def test_jitter_keeps_per_sender_order_and_delay_is_applied():
+    core = FaultCore(Impairments(delay_s=0.05, jitter_s=0.03), seed=1)
+    items = stream(500)
+    emits = drive(core, items)
+    assert seqs_of(emits, A) == list(range(500))
+    delays = np.array([t for t, _, _ in emits]) - np.array([now for now, *_ in items])
+    assert delays.min() >= 0.05 - 1e-9 and delays.max() <= 0.08 + 1e-3
+
+
+def test_duplicates_and_replays_are_exact_copies():
+    core = FaultCore(Impairments(duplicate=0.1, replay=0.05), seed=9)
+    items = stream(2000)
+    emits = drive(core, items)
+    originals = {d for *_, d in items}
+    assert all(d in originals for _, d, _ in emits)
+    st = core.stats()
+    assert len(emits) == 2000 + st["duplicated"] + st["replayed"]
+    assert st["duplicated"] > 100 and st["replayed"] > 50
+
+
+def test_bitflip_and_truncation_change_datagrams_as_counted():
+    core = FaultCore(Impairments(bitflip=0.2, bitflip_bits=3, truncate=0.1), seed=6)
+    items = stream(2000)
+    emits = drive(core, items)
+    st = core.stats()
+    short = sum(1 for _, d, _ in emits if len(d) < 53)
+    assert short == st["truncated"]
+    changed = sum(1 for (_, d, _), (*_, o) in zip(emits, items, strict=True) if d != o)
+    assert changed <= st["bitflipped"] + st["truncated"]
+    assert changed >= st["truncated"]
+
+
+def test_injections_follow_rate_count_and_window():
+    imp = Impairments(forge_rate_hz=100.0, forge_count=250, garbage_rate_hz=1000.0, inject_start_s=1.0,
+                      inject_end_s=4.0)
+    core = FaultCore(imp, seed=2, start=0.0)
+    out = drive(core, [], until=10.0)
+    st = core.stats()
+    assert st["forged_invalid"] == 250  # the count ends it at 3.5 s
+    assert st["garbage"] == 3000  # 3 s at 1000/s
+    times = np.array([t for t, _, _ in out])
+    assert times.min() >= 1.0 and times.max() < 4.0
+    assert all(s == FORGE_SENDER for _, _, s in out)
+
+
+def test_forged_invalid_and_garbage_are_always_rejected_forged_valid_accepted():
+    rng = np.random.default_rng(11)
+    for _ in range(3000):
+        for data in (forge_invalid(rng), garbage(rng, 64)):
+            with pytest.raises(DecodeError):
+                decode_input(data)
+        decode_input(forge_valid(rng, 1.7e9))  # raises if not valid
+
+
+def test_flip_and_truncate_helpers():
+    rng = np.random.default_rng(0)
+    data = bytes(range(40))
+    flipped = flip_bits(rng, data, 5)
+    diff = sum(bin(a ^ b).count("1") for a, b in zip(data, flipped, strict=True))
+    assert diff == 5
+    assert flip_bits(rng, b"", 3) == b""
+    assert all(len(truncate(rng, data)) < 40 for _ in range(100))
+
+
+def test_replies_pass_except_in_blackout():
+    core = FaultCore(Impairments(loss=1.0, blackouts=((1.0, 1.0),)), seed=0, start=0.0)
+    assert core.reply(b"\x02\x01", A, 0.5) == [(0.5, b"\x02\x01", A)]  # loss does not apply to replies
+    assert core.reply(b"\x02\x01", A, 1.5) == []
+    st = core.stats()
+    assert st["replies_forwarded"] == 1 and st["replies_dropped_blackout"] == 1
+
+
+def test_leading_and_trailing_drops():
+    core = FaultCore(Impairments(blackouts=((0.0, 0.05), (0.95, 1.0))), seed=0, start=0.0)
+    drive(core, stream(100))
+    st = core.stats()
+    assert st["leading_drops"] == 5 and st["trailing_drops"] == 5
+
+
+@pytest.mark.parametrize(
+    ("data", "message"),
+    [
+        ({"loss": 1.5}, "loss"),
+        ({"loss": "x"}, "loss"),
+        ({"nope": 1}, "unknown key"),
+        ({"blackouts": [[1.0]]}, "blackouts"),
+        ({"blackouts": [[-1.0, 2.0]]}, "blackouts"),
+        ({"bitflip_bits": 0}, "bitflip_bits"),
+        ({"inject_start_s": 5.0, "inject_end_s": 1.0}, "inject_end_s"),
+        ({"forge_on_stream": 1}, "forge_on_stream"),
+        ({"jitter_s": math.inf}, "jitter_s"),
+    ],
+)
+def test_profile_errors_name_the_key(data, message):
+    with pytest.raises(FaultConfigError, match=message):
+        impairments_from_dict(data)
+
+
+def test_profile_file_and_table(tmp_path):
+    path = tmp_path / "p.toml"
+    path.write_text('[input_link]\nloss = 0.25\nblackouts = [[1.0, 2.0]]\n[output_link]\nduplicate = 0.1\n')
+    imp = load_profile(path, "input_link")
+    assert imp.loss == 0.25 and imp.blackouts == ((1.0, 2.0),)
+    assert load_profile(path, "output_link").duplicate == 0.1
+    with pytest.raises(FaultConfigError, match="no table"):
+        load_profile(path, "missing")
+    (tmp_path / "bad.toml").write_text("loss = [")
+    with pytest.raises(FaultConfigError, match="not valid TOML"):
+        load_profile(tmp_path / "bad.toml")
