@@ -13,4 +13,8 @@ class CampaignError(ToolError):
     """A campaign scenario could not be run (a process failed to start, a file is missing...)."""
 
 
+class ModeUnsupported(CampaignError):
+    """A row cannot run in this mode or on this machine (the row is skipped with this reason)."""
+
+
 BASE_ERROR = ToolError

@@ -59,6 +59,7 @@ class Observation:
     wall_s: float = 0.0
     notes: list[str] = field(default_factory=list)
     corruption: bool = False  #: bit flips on the input link (gaps then also come from rejects)
+    auth: dict[str, Any] = field(default_factory=dict)  #: authenticated link counters (replay path)
 
 
 def _fmt(x: float | None, digits: int = 2) -> str:
@@ -140,6 +141,12 @@ def evaluate(obs: Observation, expect: dict[str, Any]) -> dict[str, Any]:
         "flips": ip["bitflipped"], "forged_valid": ip["forged_valid"],
         "accepted_bad": max(0, must_reject - rejected),
     })
+    seq_resyncs = int(seq.get("resyncs", 0))
+    row["resyncs"] = seq_resyncs
+    if obs.auth:
+        row["auth_acc"] = obs.auth.get("accepted", 0)
+        row["auth_rej"] = sum(obs.auth.get("rejected", {}).values())
+        row["auth_bad"] = obs.auth.get("bad", 0)
     age = obs.fresh_age[np.isfinite(obs.fresh_age)] if obs.fresh_age.size else obs.fresh_age
     row["age_p99_s"] = _fmt(float(np.percentile(age, 99)) if age.size else None, 3)
     row["age_max_s"] = _fmt(float(age.max()) if age.size else None, 3)
@@ -193,6 +200,8 @@ def _checks(row, obs, expect, acc, fault_cov, reasons, deg, rec) -> dict[str, bo
         out["recover_within_s"] = le(rec, expect["recover_within_s"])
     if "reasons" in expect:
         out["reasons"] = bool(reasons & set(expect["reasons"]))
+    if "auth_bad" in expect:
+        out["auth_bad"] = bool(obs.auth) and obs.auth.get("bad", 0) <= expect["auth_bad"]
     if "memory_growth_mb" in expect:
         out["memory_growth_mb"] = le(obs.memory_growth_mb, expect["memory_growth_mb"])
     if "latency_p99_ms" in expect:

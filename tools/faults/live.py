@@ -27,7 +27,7 @@ from pathlib import Path
 
 import numpy as np
 
-from tools.faults.errors import CampaignError
+from tools.faults.errors import CampaignError, ModeUnsupported
 from tools.faults.evaluate import Observation
 from tools.faults.spec import ScenarioSpec
 from tools.faults.tomlwrite import dumps
@@ -154,6 +154,8 @@ def run_live(spec: ScenarioSpec, out: Path) -> Observation:
     from tools.faults.netns import Namespace
     from tools.faults.runner import build_scenario, fault_windows, listener_config
 
+    if spec.auth:
+        raise ModeUnsupported("authenticated links are not wired into `sfa listen` yet: replay path only")
     sc = build_scenario(spec)
     track_path = database_path(sc)
     if track_path is None:

@@ -15,12 +15,12 @@ import shutil
 import subprocess
 
 from tools.faults.config import Impairments
-from tools.faults.errors import CampaignError
+from tools.faults.errors import ModeUnsupported
 
 _COUNTER = itertools.count()
 
 
-class NetnsUnavailable(CampaignError):
+class NetnsUnavailable(ModeUnsupported):
     """Namespace mode cannot run on this machine (the message says why); the row is skipped."""
 
 

@@ -18,6 +18,8 @@ import traceback
 from dataclasses import dataclass, field
 from typing import Any
 
+import numpy as np
+
 from tools.faults.config import Impairments
 from tools.faults.core import FAULT_SENDER_ADDR, FaultCore
 from tools.faults.errors import CampaignError
@@ -54,6 +56,7 @@ class Trace:
     input_proxy: dict[str, int] = field(default_factory=dict)
     output_proxy: dict[str, int] = field(default_factory=dict)
     obcu_stats: dict[str, Any] = field(default_factory=dict)
+    auth: dict[str, Any] = field(default_factory=dict)  #: authenticated input link: accepted, rejected, bad
     crash: str = ""  #: traceback of an exception, "" when none
     wall_s: float = 0.0  #: wall time of the run [s]
     events: int = 0  #: loop iterations
@@ -69,12 +72,18 @@ def run_replay_path(
     obcu_config=None,
     seed: int = 0,
     tail_s: float = 10.0,
+    auth_key: bytes | None = None,
 ) -> Trace:
     """Run ``packets`` (``Packet(arrival_s, src_port, payload)``, sorted) through the whole system.
 
     ``seed`` seeds both links' cores (the output link's with ``seed + 1``). The run ends ``tail_s``
     after the last datagram (or once the listener stopped and ``tail_s`` passed). An exception in any
     component ends the run; its traceback is in ``Trace.crash`` (the campaign counts it as a crash).
+
+    ``auth_key``: the input link is authenticated (:mod:`listener.auth`, the recommended integration):
+    each module wraps its datagrams (own epoch counter) before the link, the listener side unwraps
+    them before the pipeline. ``Trace.auth`` then says how many were accepted, rejected (by reason),
+    and ``bad``: accepted datagrams that are not an original, or an original accepted a second time.
     """
     from listener.obcu import MockObcu, ObcuConfig
     from listener.pipeline import Pipeline
@@ -97,12 +106,44 @@ def run_replay_path(
         order += 1
         heapq.heappush(heap, (t, order, kind, data, addr))
 
+    originals: set[bytes] = set()
+    accepted: set[bytes] = set()
+    auth_state = None
+    if auth_key is not None:
+        from listener.auth import AuthError, AuthState, EpochCounter, input_seq, unwrap, wrap
+
+        auth_state = AuthState()
+        counters: dict[int, EpochCounter] = {}
+        trace.auth = {"accepted": 0, "bad": 0, "rejected": {}}
     for p in packets:
-        push(float(p.arrival_s), "sim", p.payload, ("127.0.0.1", int(p.src_port)))
+        payload = p.payload
+        if auth_key is not None:
+            counter = counters.setdefault(int(p.src_port), EpochCounter())
+            payload = wrap(payload, auth_key, counter.epoch_for(input_seq(payload)))
+            originals.add(payload)
+        push(float(p.arrival_s), "sim", payload, ("127.0.0.1", int(p.src_port)))
+
+    def authentic(data: bytes, addr: Any) -> bytes | None:
+        try:
+            payload = unwrap(data, auth_key, auth_state, addr)
+        except AuthError:
+            return None
+        if data not in originals or data in accepted:
+            trace.auth["bad"] += 1
+        accepted.add(data)
+        return payload
+
+    attacker_rng = np.random.default_rng([seed, 2])
+    attacker_key = attacker_rng.bytes(32)
 
     def to_listener(emits) -> None:
         for t, data, sender in emits:
-            push(t, "in", data, FAULT_SENDER_ADDR if sender[0] == "forge" else sender)
+            if sender[0] == "forge":
+                if auth_key is not None:  # the attacker knows the format, not the key
+                    data = wrap(data, attacker_key, int(attacker_rng.integers(0, 2**32)))
+                push(t, "in", data, FAULT_SENDER_ADDR)
+            else:
+                push(t, "in", data, sender)
 
     def outputs(datagrams: list[bytes], now: float) -> None:
         for d in datagrams:
@@ -152,7 +193,10 @@ def run_replay_path(
                     else:
                         to_listener(in_core.forward(data, addr, now))
                 elif kind == "in":
-                    outputs(pipe.receive(data, addr, now), now)
+                    if auth_state is not None:
+                        data = authentic(data, addr)
+                    if data is not None:
+                        outputs(pipe.receive(data, addr, now), now)
                 elif kind == "obcu":
                     on_obcu(data, now)
                 else:  # "ack"
@@ -190,6 +234,9 @@ def run_replay_path(
     trace.metrics = pipe.metrics()
     trace.link_transitions = [(t - t0, s) for t, s in pipe.link.transitions]
     trace.input_proxy = in_core.stats() if in_core else {}
+    if auth_state is not None:
+        trace.auth["accepted"] = auth_state.accepted
+        trace.auth["rejected"] = dict(sorted(auth_state.rejected.items()))
     trace.output_proxy = out_core.stats() if out_core else {}
     st = obcu.stats
     trace.obcu_duplicates = st.duplicates

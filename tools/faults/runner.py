@@ -16,9 +16,8 @@ from typing import Any
 
 import numpy as np
 
-from tools.faults.errors import CampaignError
+from tools.faults.errors import CampaignError, ModeUnsupported
 from tools.faults.evaluate import Observation, evaluate
-from tools.faults.netns import NetnsUnavailable
 from tools.faults.spec import ScenarioSpec
 
 
@@ -77,8 +76,15 @@ def run_replay(spec: ScenarioSpec, out_dir: Path) -> Observation:
     obcu_cfg = ObcuConfig(drop_acks=spec.obcu.drop_acks, silent=spec.obcu.silent,
                           restart_at_s=spec.obcu.restart_at_s)
     with TrackDatabase.open(track_path) as track:
+        auth_key = None
+        if spec.auth:
+            from listener.auth import derive_link_key
+
+            master = b"sfa-campaign-master-key:" + spec.name.encode()
+            auth_key = derive_link_key(master, "modules->listener")
         trace = run_replay_path(sim.packets, track, cfg, input_link=spec.input_link,
-                                output_link=spec.output_link, obcu_config=obcu_cfg, seed=spec.seed)
+                                output_link=spec.output_link, obcu_config=obcu_cfg, seed=spec.seed,
+                                auth_key=auth_key)
     t0 = trace.start_s
     fresh = trace.fresh
     arrival = np.array([f.arrival_s for f in fresh]) - t0
@@ -102,12 +108,13 @@ def run_replay(spec: ScenarioSpec, out_dir: Path) -> Observation:
         crashes=1 if trace.crash else 0, crash_detail=trace.crash, wall_s=trace.wall_s,
         corruption=bool(spec.input_link and (spec.input_link.bitflip > 0 or spec.input_link.forge_on_stream)),
     )
+    obs.auth = trace.auth
     if trace.crash:
         obs.notes.append("crash: " + trace.crash.strip().splitlines()[-1])
     (out_dir / "trace.json").write_text(json.dumps({
         "metrics": trace.metrics, "input_proxy": trace.input_proxy, "output_proxy": trace.output_proxy,
-        "obcu": trace.obcu_stats, "link_transitions": trace.link_transitions, "events": trace.events,
-        "crash": trace.crash,
+        "obcu": trace.obcu_stats, "auth": trace.auth, "link_transitions": trace.link_transitions,
+        "events": trace.events, "crash": trace.crash,
     }, indent=1, default=str))
     return obs
 
@@ -132,8 +139,8 @@ def run_scenario(spec: ScenarioSpec, mode: str, out_dir: str) -> dict[str, Any]:
             raise CampaignError(f"unknown mode {mode!r} (replay or live)")
         obs.wall_s = time.perf_counter() - t0
         row = evaluate(obs, spec.expect)
-    except NetnsUnavailable as exc:
-        row = {"scenario": spec.name, "mode": mode + "+netns", "verdict": "SKIP", "notes": str(exc),
+    except ModeUnsupported as exc:
+        row = {"scenario": spec.name, "mode": mode, "verdict": "SKIP", "notes": str(exc),
                "wall_s": round(time.perf_counter() - t0, 1)}
     except Exception as exc:  # the harness failed: report it in the table, keep the campaign going
         (out / "error.txt").write_text(traceback.format_exc())

@@ -53,6 +53,7 @@ EXPECT_KEYS = {
     "reasons": "filter reasons that must be reported during the sensor-fault windows (any of them)",
     "memory_growth_mb": "live: largest listener RSS growth during the run [MB]",
     "latency_p99_ms": "live: largest p99 output lag above the best one [ms]",
+    "auth_bad": "authenticated link: most accepted datagrams that are not a first copy of an original",
 }
 
 
@@ -82,6 +83,7 @@ class ScenarioSpec:
     speed: float = 10.0  #: live: simulated seconds per wall second
     netns: bool = False  #: live: run the listener in a network namespace behind tc netem
     timeout_s: float | None = None  #: wall time before the run counts as stalled (None: from duration) [s]
+    auth: bool = False  #: replay path: authenticate the input link (listener.auth), forgeries use a wrong key
 
     def scenario_dict(self) -> dict[str, Any]:
         """The simulator scenario to run: the base with this row's faults and duration."""
@@ -102,7 +104,7 @@ class Campaign:
 
 _CAMPAIGN_KEYS = {"name", "duration_s", "seed", "speed", "listener"}
 _ROW_KEYS = {"name", "duration_s", "seed", "input_link", "output_link", "obcu", "sensor_faults", "listener",
-             "expect", "speed", "netns", "description", "timeout_s"}
+             "expect", "speed", "netns", "description", "timeout_s", "auth"}
 
 
 def _number(value: Any, where: str, low: float = 0.0, strict: bool = True) -> float:
@@ -111,6 +113,12 @@ def _number(value: Any, where: str, low: float = 0.0, strict: bool = True) -> fl
     if float(value) < low or (strict and float(value) == low):
         raise FaultConfigError(f"{where}: must be {'>' if strict else '>='} {low}, got {value!r}")
     return float(value)
+
+
+def _flag(value: Any, where: str) -> bool:
+    if not isinstance(value, bool):
+        raise FaultConfigError(f"{where}: true or false, got {value!r}")
+    return value
 
 
 def _windows(value: Any, where: str) -> tuple[tuple[float, float], ...]:
@@ -257,6 +265,7 @@ def campaign_from_dict(data: dict[str, Any], source: str = "<dict>", root: Path 
             speed=_number(row.get("speed", speed), f"{where}.speed"),
             netns=netns,
             timeout_s=None if "timeout_s" not in row else _number(row["timeout_s"], f"{where}.timeout_s"),
+            auth=_flag(row.get("auth", False), f"{where}.auth"),
         )
         try:
             scenario_from_dict(spec.scenario_dict(), source=f"{source}:{name}", base_dir=str(root))
