@@ -29,6 +29,10 @@ class InputConfig:
     hold_time_s: float = 0.03  #: how long an out-of-order datagram waits for a gap to fill [s]
     max_pending: int = 256  #: datagrams held per stream before the oldest gap is declared lost [count]
     max_streams: int = 64  #: distinct senders tracked at once; idle ones are evicted beyond this [count]
+    #: hold a new sender's first datagrams hold_time_s to find its true first number. Off by default:
+    #: with it, the first releases depend on exact arrival timing, so a replay could differ from the
+    #: live run in its first estimates; without it a reordered very first pair loses one datagram (late)
+    startup_hold: bool = False
     receive_buffer_bytes: int = 4 * 1024 * 1024  #: SO_RCVBUF requested for the input socket [bytes]
 
 

@@ -92,7 +92,9 @@ class Pipeline:
         self.track = track
         inp = self.cfg.input
         self.streams: StreamTable = StreamTable(
-            SeqBufferConfig(hold_time_s=inp.hold_time_s, max_pending=inp.max_pending),
+            SeqBufferConfig(
+                hold_time_s=inp.hold_time_s, max_pending=inp.max_pending, startup_hold=inp.startup_hold
+            ),
             max_streams=inp.max_streams,
         )
         self.clock = StrobeClock(self.cfg.clock)
