@@ -7,9 +7,10 @@ into a flat row (strings and numbers only, ready for CSV/markdown/HTML). Definit
 - *error*: estimate minus truth interpolated at the estimate's epoch (``tools.accuracy``).
 - *losses*: drops (and truncations, always rejected) on the input link a receiver can see (not before
   a sender's first datagram, not after its last) versus the listener's ``sequencing.lost``;
-  *duplicates*: duplicated + replayed versus ``duplicates + late``; *reorders*: versus
-  ``reordered``; *rejects*: datagrams that no correct decoder accepts (forged-invalid, garbage,
-  truncated) versus ``input.rejected``.
+  *duplicates*: duplicated + replayed versus ``duplicates + late + probation_drops`` (a replay from
+  further back than the buffer's ``max_backward`` is a restart candidate, dropped in probation);
+  *reorders*: versus ``reordered``; *rejects*: datagrams that no correct decoder accepts
+  (forged-invalid, garbage, truncated) versus ``input.rejected``.
 - *age*: arrival at the OBCU minus the estimate's epoch (replay: exact, the capture clock is the
   sensor clock; live: relative to the freshest output, the clocks being unrelated).
 - *recovery*: after a blackout ends, time until the link is UP again (output link) or until the
@@ -135,7 +136,8 @@ def evaluate(obs: Observation, expect: dict[str, Any]) -> dict[str, Any]:
     row.update({
         "lost_inj": visible, "lost_det": int(seq.get("lost", 0)),
         "dup_inj": ip["duplicated"] + ip["replayed"],
-        "dup_det": int(seq.get("duplicates", 0)) + int(seq.get("late", 0)),
+        "dup_det": (int(seq.get("duplicates", 0)) + int(seq.get("late", 0))
+                    + int(seq.get("probation_drops", 0))),
         "reord_inj": ip["reordered"], "reord_det": int(seq.get("reordered", 0)),
         "rej_inj": must_reject, "rej_det": rejected,
         "flips": ip["bitflipped"], "forged_valid": ip["forged_valid"],

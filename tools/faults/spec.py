@@ -43,7 +43,7 @@ EXPECT_KEYS = {
     "coverage": "least fraction of fresh outputs whose interval holds the truth",
     "fault_coverage": "least interval coverage inside the sensor-fault windows",
     "losses_match": "input-link drops the listener can see == its lost count (true)",
-    "duplicates_match": "injected duplicates (+ replays) == duplicates + late counted (true)",
+    "duplicates_match": "injected duplicates (+ replays) == duplicates + late + probation drops (true)",
     "reorders_match": "injected reorders == reordered counted (true)",
     "accepted_bad": "most invalid datagrams (forged-invalid, garbage) accepted [count]",
     "rejected_match": "every injected invalid datagram counted as rejected (true)",
