@@ -85,6 +85,7 @@ class FilterConfig:
     # --- lines and junctions
     junction_window_m: float = 30.0  #: distance before a junction at which branch hypotheses are spawned [m]
     prune_log_ratio: float = 9.2  #: log-likelihood lead that prunes a hypothesis (9.2 = 1e4:1) [-]
+    switch_log_ratio: float = 4.6  #: lead another hypothesis needs to become the reported one (100:1) [-]
     max_hypotheses: int = 6  #: most line / direction hypotheses kept at once [-]
     reversal_hypotheses: bool = True  #: at standstill also keep the reversed sense of travel
     loglik_nis_cap: float = 50.0  #: NIS cap in the hypothesis likelihood (robust to outliers) [NIS]

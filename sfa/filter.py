@@ -461,10 +461,12 @@ class TrackFilter:
         if not keep:
             keep = [reported]
         keep = keep[: self._config.max_hypotheses]
-        # reported line: keep the current one unless another leads by more than 2 log units
+        # reported hypothesis: keep the current one unless another leads by switch_log_ratio
         if reported in keep:
             lead = max(keep, key=lambda h: float(h.aux[L.A_LOGLIK]))
-            chosen = lead if float(lead.aux[L.A_LOGLIK]) > float(reported.aux[L.A_LOGLIK]) + 2.0 else reported
+            margin = self._config.switch_log_ratio
+            ahead = float(lead.aux[L.A_LOGLIK]) > float(reported.aux[L.A_LOGLIK]) + margin
+            chosen = lead if ahead else reported
         else:
             chosen = max(keep, key=lambda h: float(h.aux[L.A_LOGLIK]))
         if len(keep) == 1:
