@@ -39,7 +39,6 @@ import numpy as np
 MAX_EXACT_PREFIX = 200_000
 _KIND_NAME = {1: "imu", 2: "odo", 3: "gps", 8: "init"}
 _TYPE_NAME = {1: "imu", 2: "odometer", 3: "gps", 8: "ground_truth", 9: "strobe", 10: "stop"}
-_EPOCH_DOUBLES = {1: 7, 2: 3, 3: 5}  #: N_DOUBLE of IMU, odometer and GPS datagrams that carry an epoch
 
 
 @dataclass(frozen=True)
@@ -166,6 +165,7 @@ def _gps_of(dec, i):
 def _replay_scanned(scan, track, options):
     from listener.codec import DecodeError, decode_input
     from tools.fast_decode import decode_batch
+    from tools.fast_pack import EPOCH_DOUBLES
     from tools.fast_pcap import SKIP_REASONS, ipv4_text
 
     dec = decode_batch(scan.data, scan.offset, scan.length)
@@ -211,7 +211,7 @@ def _replay_scanned(scan, track, options):
     if np.any(ok & (st == 8)):
         return None, _info(False, "GROUND TRUTH after the start (re-initialisation)", h)
     meas = ok & ((st == 1) | (st == 2) | (st == 3))
-    for t, nd in _EPOCH_DOUBLES.items():
+    for t, nd in EPOCH_DOUBLES.items():
         if np.any(ok & (st == t) & (dec.n_double[rows] != nd)):
             return None, _info(False, f"{_TYPE_NAME[t]} datagrams without epoch (need STROBE dating)", h)
     if np.any(ok & (st == 10) & (rows != n - 1)):  # pragma: no cover - n ends at the first STOP
@@ -222,46 +222,14 @@ def _replay_scanned(scan, track, options):
 
     # 3. pack and run
     from sfa import layout as L
-    from sfa.batch import NV
+    from tools.fast_pack import pack_rows
 
     filt = pipe.filter
     hyp = filt._hyps[filt._reported]  # the single hypothesis (ready() checked there is one)
     line = hyp.line
     mrows = rows[meas]
-    mk = dec.stype[mrows]
+    kind, t_s, vals = pack_rows(dec, mrows, track)
     nm = mrows.size
-    kind = mk.astype(np.int64)
-    vals = np.full((nm, NV), math.nan)
-    wire = dec.values[mrows]
-    t_s = np.empty(nm)
-    imu = mk == 1
-    vals[imu, 0:6] = wire[imu, 0:6]
-    t_s[imu] = wire[imu, 6]
-    odo = mk == 2
-    vals[odo, 0:2] = wire[odo, 0:2]
-    t_s[odo] = wire[odo, 2]
-    gpsm = mk == 3
-    if np.any(gpsm):
-        gw = wire[gpsm]
-        has_q = dec.n_int[mrows[gpsm]] == 2
-        base = np.where(has_q, 2, 0)
-        idx = np.arange(gw.shape[0])
-        lat, lon = gw[idx, base], gw[idx, base + 1]
-        sig_h = gw[idx, base + 3]
-        t_s[gpsm] = gw[idx, base + 4]
-        fq = np.where(has_q, gw[:, 0], -1.0)
-        east = np.zeros(gw.shape[0])
-        north = np.zeros(gw.shape[0])
-        use = fq != 0.0  # fix quality 0: the filter sees (0, 0) and counts no fix
-        if np.any(use):
-            e, nn = track.to_local(lat[use], lon[use])
-            east[use] = np.asarray(e, dtype=np.float64)
-            north[use] = np.asarray(nn, dtype=np.float64)
-        g = np.flatnonzero(gpsm)
-        vals[g, 0] = east
-        vals[g, 1] = north
-        vals[g, 2] = sig_h
-        vals[g, 3] = fq
 
     from tools.fast_loop import interp_many, run_replay_loop
 

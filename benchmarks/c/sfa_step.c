@@ -1,0 +1,751 @@
+/*
+ * C reference of the SFA filter step: the same state, the same equations, the same branch structure
+ * as sfa/kernels.py (prediction with the held IMU force, gyro update, odometer update with slip
+ * detection / rewind / ZUPT, GNSS update with late-fix back-propagation, step/ramp detection and
+ * re-acquisition, covariance conditioning, status) and the loop of sfa.batch.run_packed.
+ *
+ * It exists to measure the physical limit of the filter step on this machine ("how fast could the
+ * same arithmetic go in plain C -O2"), so sfa bench can report SFA's compiled core as a ratio to it.
+ * The slot indices come from sfa_layout.h, generated from sfa/layout.py at build time
+ * (benchmarks/c/cref.py), so the two cannot drift. Every line follows the Python kernel of the same
+ * name; the equations are documented there and in docs/filter.md.
+ *
+ * The only intended difference is the order of floating-point sums inside the small matrix products
+ * (numpy/BLAS versus the plain loops here): results agree to rounding (the bench prints the largest
+ * difference).
+ */
+#include <math.h>
+#include <string.h>
+#include "sfa_layout.h"
+
+enum { O_ACCEPTED = 0, O_GATED = 1, O_LATE = 2, O_INVALID = 3, O_NOT_INIT = 4, O_NO_FIX = 5,
+       O_INITIALISED = 6, O_HELD_OFF = 7 };
+
+#define PIJ(P, i, j) ((P)[(i) * NX + (j)])
+
+/* ------------------------------------------------------------------ track geometry */
+static long seg_index(const double *ts, long n, double s) {
+    /* np.searchsorted(ts, s, side="right") - 1, clamped to [0, n - 2] */
+    long lo = 0, hi = n;
+    while (lo < hi) {
+        long mid = (lo + hi) >> 1;
+        if (ts[mid] <= s) lo = mid + 1; else hi = mid;
+    }
+    long i = lo - 1;
+    if (i < 0) i = 0;
+    if (i > n - 2) i = n - 2;
+    return i;
+}
+
+static void geom_at(const double *ts, const double *te, const double *tn, long n, double s,
+                    double *e, double *no, double *de, double *dn) {
+    long i = seg_index(ts, n, s);
+    double ds = ts[i + 1] - ts[i];
+    if (ds <= 0.0) ds = 1e-9;
+    *de = (te[i + 1] - te[i]) / ds;
+    *dn = (tn[i + 1] - tn[i]) / ds;
+    double u = s - ts[i];
+    *e = te[i] + *de * u;
+    *no = tn[i] + *dn * u;
+}
+
+static double interp_at(const double *ts, const double *arr, long n, double s) {
+    if (s <= ts[0]) return arr[0];
+    if (s >= ts[n - 1]) return arr[n - 1];
+    long i = seg_index(ts, n, s);
+    double ds = ts[i + 1] - ts[i];
+    if (ds <= 0.0) return arr[i];
+    return arr[i] + (arr[i + 1] - arr[i]) * (s - ts[i]) / ds;
+}
+
+static double slope_at(const double *ts, const double *arr, long n, double s) {
+    if (s <= ts[0] || s >= ts[n - 1]) return 0.0;
+    long i = seg_index(ts, n, s);
+    double ds = ts[i + 1] - ts[i];
+    if (ds <= 0.0) return 0.0;
+    return (arr[i + 1] - arr[i]) / ds;
+}
+
+/* ------------------------------------------------------------------ covariance hygiene */
+static int cholesky_ok(const double *P) {
+    double L[NX * NX];
+    memset(L, 0, sizeof L);
+    for (int j = 0; j < NX; j++) {
+        double d = PIJ(P, j, j);
+        for (int k = 0; k < j; k++) d -= PIJ(L, j, k) * PIJ(L, j, k);
+        if (!(d > 0.0) || !isfinite(d)) return 0;
+        PIJ(L, j, j) = sqrt(d);
+        for (int i = j + 1; i < NX; i++) {
+            double v = PIJ(P, i, j);
+            for (int k = 0; k < j; k++) v -= PIJ(L, i, k) * PIJ(L, j, k);
+            PIJ(L, i, j) = v / PIJ(L, j, j);
+        }
+    }
+    return 1;
+}
+
+static void condition_cov(double *P, const double *cfg, long *cnt) {
+    double pmin = cfg[K_P_MIN_VAR];
+    int repaired = 0;
+    for (int i = 0; i < NX; i++) {
+        for (int j = i + 1; j < NX; j++) {
+            double m = 0.5 * (PIJ(P, i, j) + PIJ(P, j, i));
+            PIJ(P, i, j) = m;
+            PIJ(P, j, i) = m;
+        }
+        if (!(PIJ(P, i, i) >= pmin)) {
+            PIJ(P, i, i) = pmin;
+            repaired = 1;
+        }
+    }
+    if (!cholesky_ok(P)) {
+        for (int i = 0; i < NX; i++)
+            for (int j = 0; j < NX; j++)
+                if (i != j) PIJ(P, i, j) = 0.0;
+        repaired = 1;
+    }
+    if (repaired) cnt[C_COV_REPAIR] += 1;
+}
+
+/* ------------------------------------------------------------------ prediction */
+static void predict_step(double *x, double *P, const double *aux, const double *cfg, const double *ts,
+                         const double *tg, long nv, double h, int imu_ok) {
+    double g = cfg[K_GRAVITY];
+    double grade = interp_at(ts, tg, nv, x[S]);
+    double sin_th = grade / sqrt(1.0 + grade * grade);
+    double d = aux[A_DIR], fx = aux[A_FX], fy = aux[A_FY];
+    double a, q;
+    if (imu_ok) {
+        a = d * (fx - x[BA] - x[MY] * fy - x[SF] * fx) - g * sin_th;
+        q = cfg[K_Q_ACC];
+    } else {
+        a = 0.0;
+        q = cfg[K_Q_NO_IMU];
+    }
+    double phi = exp(-h / cfg[K_GM_TAU]);
+    x[S] += x[V] * h + 0.5 * a * h * h;
+    x[V] += a * h;
+    x[GE] *= phi;
+    x[GN] *= phi;
+    double fsb = 0.0, fvb = 0.0;
+    if (imu_ok) {
+        fsb = -0.5 * d * h * h;
+        fvb = -d * h;
+    }
+    double fsm = fsb * fy, fvm = fvb * fy, fss = fsb * fx, fvs = fvb * fx;
+    for (int j = 0; j < NX; j++) {
+        double ps = PIJ(P, S, j), pv = PIJ(P, V, j);
+        PIJ(P, S, j) = ps + h * pv + fsb * PIJ(P, BA, j) + fsm * PIJ(P, MY, j) + fss * PIJ(P, SF, j);
+        PIJ(P, V, j) = pv + fvb * PIJ(P, BA, j) + fvm * PIJ(P, MY, j) + fvs * PIJ(P, SF, j);
+        PIJ(P, GE, j) *= phi;
+        PIJ(P, GN, j) *= phi;
+    }
+    for (int i = 0; i < NX; i++) {
+        double as = PIJ(P, i, S), av = PIJ(P, i, V);
+        PIJ(P, i, S) = as + h * av + fsb * PIJ(P, i, BA) + fsm * PIJ(P, i, MY) + fss * PIJ(P, i, SF);
+        PIJ(P, i, V) = av + fvb * PIJ(P, i, BA) + fvm * PIJ(P, i, MY) + fvs * PIJ(P, i, SF);
+        PIJ(P, i, GE) *= phi;
+        PIJ(P, i, GN) *= phi;
+    }
+    PIJ(P, S, S) += q * h * h * h / 3.0;
+    PIJ(P, S, V) += q * h * h / 2.0;
+    PIJ(P, V, S) += q * h * h / 2.0;
+    PIJ(P, V, V) += q * h;
+    PIJ(P, BA, BA) += cfg[K_Q_BA] * h;
+    PIJ(P, KO, KO) += cfg[K_Q_KO] * h;
+    double gm = cfg[K_GM_SIGMA];
+    PIJ(P, GE, GE) += gm * gm * (1.0 - phi * phi);
+    PIJ(P, GN, GN) += gm * gm * (1.0 - phi * phi);
+    PIJ(P, BG, BG) += cfg[K_Q_BG] * h;
+}
+
+static void predict_to(double *x, double *P, double *aux, long *cnt, const double *cfg, const double *ts,
+                       const double *tg, long nv, double t) {
+    double dt_total = t - aux[A_T_STATE];
+    if (dt_total <= 0.0) return;
+    int imu_ok = (t - aux[A_T_IMU]) <= cfg[K_IMU_TIMEOUT];
+    long n = (long)ceil(dt_total / cfg[K_MAX_DT]);
+    if (n < 1) n = 1;
+    double h = dt_total / (double)n;
+    for (long k = 0; k < n; k++) predict_step(x, P, aux, cfg, ts, tg, nv, h, imu_ok);
+    aux[A_T_STATE] = t;
+    condition_cov(P, cfg, cnt);
+}
+
+/* ------------------------------------------------------------------ generic update (1 or 2 rows) */
+typedef struct {
+    double PHt[NX * 2]; /* NX x m, row-major with stride 2 */
+    double Sm[4], Si[4];
+    double nis, logdet;
+} Innov;
+
+static void innovation(const double *P, const double *H, const double *R, const double *y, int m, Innov *o) {
+    for (int i = 0; i < NX; i++)
+        for (int r = 0; r < m; r++) {
+            double acc = 0.0;
+            for (int k = 0; k < NX; k++) acc += PIJ(P, i, k) * H[r * NX + k];
+            o->PHt[i * 2 + r] = acc;
+        }
+    for (int a = 0; a < m; a++)
+        for (int b = 0; b < m; b++) {
+            double acc = 0.0;
+            for (int k = 0; k < NX; k++) acc += H[a * NX + k] * o->PHt[k * 2 + b];
+            o->Sm[a * 2 + b] = acc + R[a * 2 + b];
+        }
+    double det;
+    if (m == 1) {
+        det = o->Sm[0];
+        o->Si[0] = 1.0 / det;
+    } else {
+        det = o->Sm[0] * o->Sm[3] - o->Sm[1] * o->Sm[2];
+        o->Si[0] = o->Sm[3] / det;
+        o->Si[3] = o->Sm[0] / det;
+        o->Si[1] = -o->Sm[1] / det;
+        o->Si[2] = -o->Sm[2] / det;
+    }
+    double nis = 0.0;
+    for (int a = 0; a < m; a++)
+        for (int b = 0; b < m; b++) nis += y[a] * o->Si[a * 2 + b] * y[b];
+    o->nis = nis;
+    o->logdet = det > 0.0 ? log(det) : 1e300;
+}
+
+static int apply_update(double *x, double *P, const double *H, const double *R, const double *y, int m,
+                        const Innov *in, const double *cfg, long *cnt) {
+    double K[NX * 2], xn[NX], IKH[NX * NX], T[NX * NX], Pn[NX * NX];
+    for (int i = 0; i < NX; i++)
+        for (int b = 0; b < m; b++) {
+            double acc = 0.0;
+            for (int a = 0; a < m; a++) acc += in->PHt[i * 2 + a] * in->Si[a * 2 + b];
+            K[i * 2 + b] = acc;
+        }
+    for (int i = 0; i < NX; i++) {
+        double acc = 0.0;
+        for (int a = 0; a < m; a++) acc += K[i * 2 + a] * y[a];
+        xn[i] = x[i] + acc;
+    }
+    for (int i = 0; i < NX; i++)
+        for (int j = 0; j < NX; j++) {
+            double acc = 0.0;
+            for (int a = 0; a < m; a++) acc += K[i * 2 + a] * H[a * NX + j];
+            IKH[i * NX + j] = (i == j ? 1.0 : 0.0) - acc;
+        }
+    for (int i = 0; i < NX; i++) /* T = IKH P */
+        for (int j = 0; j < NX; j++) {
+            double acc = 0.0;
+            for (int k = 0; k < NX; k++) acc += IKH[i * NX + k] * PIJ(P, k, j);
+            T[i * NX + j] = acc;
+        }
+    for (int i = 0; i < NX; i++) /* Pn = T IKH' + K R K' */
+        for (int j = 0; j < NX; j++) {
+            double acc = 0.0;
+            for (int k = 0; k < NX; k++) acc += T[i * NX + k] * IKH[j * NX + k];
+            double krk = 0.0;
+            for (int a = 0; a < m; a++) {
+                double kr = 0.0;
+                for (int b = 0; b < m; b++) kr += K[i * 2 + b] * R[b * 2 + a];
+                krk += kr * K[j * 2 + a];
+            }
+            Pn[i * NX + j] = acc + krk;
+        }
+    for (int i = 0; i < NX; i++) {
+        if (!isfinite(xn[i])) return 0;
+        for (int j = 0; j < NX; j++)
+            if (!isfinite(Pn[i * NX + j])) return 0;
+    }
+    memcpy(x, xn, sizeof xn);
+    memcpy(P, Pn, sizeof Pn);
+    condition_cov(P, cfg, cnt);
+    return 1;
+}
+
+/* ------------------------------------------------------------------ timeouts and status */
+static void check_timeouts(double *aux, long *cnt, const double *cfg, double t) {
+    const int flags[3][4] = {{A_IMU_TO, A_T_IMU, K_IMU_TIMEOUT, C_IMU_TIMEOUT},
+                             {A_ODO_TO, A_T_ODO, K_ODO_TIMEOUT, C_ODO_TIMEOUT},
+                             {A_GPS_TO, A_T_GPS, K_GPS_TIMEOUT, C_GPS_TIMEOUT}};
+    for (int k = 0; k < 3; k++) {
+        int out = (t - aux[flags[k][1]]) > cfg[flags[k][2]];
+        if (out && aux[flags[k][0]] == 0.0) cnt[flags[k][3]] += 1;
+        aux[flags[k][0]] = out ? 1.0 : 0.0;
+    }
+}
+
+static long status_of(const double *x, const double *P, const double *aux, const double *cfg, double t,
+                      long *bits_out, double *sigma_out) {
+    (void)x;
+    if (aux[A_INIT] == 0.0) {
+        *bits_out = R_NOT_INIT;
+        *sigma_out = INFINITY;
+        return 0;
+    }
+    long bits = 0;
+    int imu_to = (t - aux[A_T_IMU]) > cfg[K_IMU_TIMEOUT];
+    int odo_to = (t - aux[A_T_ODO]) > cfg[K_ODO_TIMEOUT];
+    int gps_to = (t - aux[A_T_GPS]) > cfg[K_GPS_TIMEOUT];
+    if (imu_to) bits |= R_IMU_TIMEOUT;
+    if (odo_to) bits |= R_ODO_TIMEOUT;
+    if (gps_to) bits |= R_GPS_TIMEOUT;
+    if (imu_to && odo_to) bits |= R_NO_MOTION_SENSOR;
+    if (aux[A_SLIP] != 0.0) bits |= R_SLIP;
+    if (aux[A_GPS_REJ] > 0.0) {
+        bits |= R_GNSS_REJECTING;
+        if (aux[A_STEP_FLAG] != 0.0) bits |= R_GNSS_STEP;
+    }
+    if (t < aux[A_GPS_HOLD]) bits |= R_GNSS_RAMP;
+    if (aux[A_STILL] != 0.0) bits |= R_STANDSTILL;
+    double var = PIJ(P, S, S);
+    double sigma = var > 0.0 ? sqrt(var) : 0.0;
+    if (sigma > cfg[K_LOST_SIGMA]) bits |= R_SIGMA_LOST;
+    else if (sigma > cfg[K_DEGRADED_SIGMA]) bits |= R_SIGMA_HIGH;
+    *bits_out = bits;
+    *sigma_out = sigma;
+    if (bits & (R_SIGMA_LOST | R_NO_MOTION_SENSOR)) return 3;
+    if (bits & ~(long)R_STANDSTILL) return 2;
+    return 1;
+}
+
+/* ------------------------------------------------------------------ rewind memory */
+static void mem_reset(double *mem) {
+    memset(mem, 0, sizeof(double) * NMEM);
+    mem[MEM_T_ROT] = -INFINITY;
+}
+
+static void mem_save(const double *x, const double *P, const double *aux, double *mem, long off) {
+    memcpy(mem + off, x, sizeof(double) * NX);
+    memcpy(mem + off + NX, P, sizeof(double) * NX * NX);
+    long k = off + NX + NX * NX;
+    mem[k] = aux[A_T_STATE];
+    mem[k + 1] = aux[A_FX];
+    mem[k + 2] = aux[A_FY];
+    mem[k + 3] = 1.0;
+}
+
+static void mem_push_imu(double *mem, double t, double fx, double fy) {
+    long n = (long)mem[MEM_HN], head = (long)mem[MEM_HH], i;
+    if (n < NH) {
+        i = (head + n) % NH;
+        mem[MEM_HN] = (double)(n + 1);
+    } else {
+        i = head;
+        mem[MEM_HH] = (double)((head + 1) % NH);
+    }
+    mem[MEM_H0 + 3 * i] = t;
+    mem[MEM_H0 + 3 * i + 1] = fx;
+    mem[MEM_H0 + 3 * i + 2] = fy;
+}
+
+static void mem_rotate(const double *x, const double *P, const double *aux, double *mem, const double *cfg,
+                       double t) {
+    if (cfg[K_SNAP_PERIOD] <= 0.0 || t - mem[MEM_T_ROT] < cfg[K_SNAP_PERIOD]) return;
+    memmove(mem + MEM_A, mem + MEM_B, sizeof(double) * SNAP);
+    mem_save(x, P, aux, mem, MEM_B);
+    mem[MEM_T_ROT] = t;
+}
+
+static int rewind_imu_only(double *x, double *P, double *aux, long *cnt, const double *cfg, const double *ts,
+                           const double *tg, long nv, double *mem) {
+    if (cfg[K_SNAP_PERIOD] <= 0.0 || mem[MEM_A + SNAP - 1] != 1.0) return 0;
+    long k = MEM_A + NX + NX * NX;
+    double t_snap = mem[k];
+    long n = (long)mem[MEM_HN], head = (long)mem[MEM_HH];
+    if (n == 0 || mem[MEM_H0 + 3 * head] > t_snap + 0.05) return 0;
+    double t_now = aux[A_T_STATE], fx_now = aux[A_FX], fy_now = aux[A_FY];
+    memcpy(x, mem + MEM_A, sizeof(double) * NX);
+    memcpy(P, mem + MEM_A + NX, sizeof(double) * NX * NX);
+    aux[A_T_STATE] = t_snap;
+    aux[A_FX] = mem[k + 1];
+    aux[A_FY] = mem[k + 2];
+    for (long m = 0; m < n; m++) {
+        long i = (head + m) % NH;
+        double ti = mem[MEM_H0 + 3 * i];
+        if (ti <= t_snap || ti > t_now) continue;
+        predict_to(x, P, aux, cnt, cfg, ts, tg, nv, ti);
+        aux[A_FX] = mem[MEM_H0 + 3 * i + 1];
+        aux[A_FY] = mem[MEM_H0 + 3 * i + 2];
+    }
+    predict_to(x, P, aux, cnt, cfg, ts, tg, nv, t_now);
+    aux[A_FX] = fx_now;
+    aux[A_FY] = fy_now;
+    aux[A_T_STATE] = t_now;
+    mem[MEM_A + SNAP - 1] = 0.0;
+    mem[MEM_B + SNAP - 1] = 0.0;
+    cnt[C_SLIP_REWIND] += 1;
+    return 1;
+}
+
+/* ------------------------------------------------------------------ initialisation */
+static long step_init(double *x, double *P, double *aux, long *cnt, double *mem, const double *cfg,
+                      const double *ts, const double *tg, long nv, double t, double s, double v,
+                      double direction) {
+    if (!(isfinite(t) && isfinite(s) && isfinite(v)) || fabs(v) > 1000.0 || fabs(direction) != 1.0)
+        return O_INVALID;
+    if (aux[A_INIT] == 0.0) {
+        memset(x, 0, sizeof(double) * NX);
+        memset(P, 0, sizeof(double) * NX * NX);
+        PIJ(P, BA, BA) = pow(cfg[K_INIT_SIGMA_BA], 2);
+        PIJ(P, KO, KO) = pow(cfg[K_INIT_SIGMA_KO], 2);
+        PIJ(P, GE, GE) = pow(cfg[K_GM_SIGMA], 2);
+        PIJ(P, GN, GN) = pow(cfg[K_GM_SIGMA], 2);
+        PIJ(P, BG, BG) = pow(cfg[K_INIT_SIGMA_BG], 2);
+        PIJ(P, MY, MY) = pow(cfg[K_INIT_SIGMA_MY], 2);
+        PIJ(P, SF, SF) = pow(cfg[K_INIT_SIGMA_SF], 2);
+    }
+    for (int i = 0; i < NX; i++) {
+        PIJ(P, S, i) = 0.0;
+        PIJ(P, i, S) = 0.0;
+        PIJ(P, V, i) = 0.0;
+        PIJ(P, i, V) = 0.0;
+    }
+    x[S] = s;
+    x[V] = direction * v;
+    aux[A_DIR] = direction;
+    PIJ(P, S, S) = pow(cfg[K_INIT_SIGMA_S], 2);
+    PIJ(P, V, V) = pow(cfg[K_INIT_SIGMA_V], 2);
+    double grade = interp_at(ts, tg, nv, s);
+    aux[A_FX] = x[BA] + direction * cfg[K_GRAVITY] * grade / sqrt(1.0 + grade * grade);
+    aux[A_FY] = 0.0;
+    aux[A_T_STATE] = t;
+    aux[A_T_IMU] = t;
+    aux[A_T_ODO] = t;
+    aux[A_T_GPS] = t;
+    aux[A_T_INIT] = t;
+    aux[A_INIT] = 1.0;
+    aux[A_SLIP] = 0.0;
+    aux[A_SLIP_BAD] = 0.0;
+    aux[A_SLIP_GOOD] = 0.0;
+    aux[A_CUSUM_P] = 0.0;
+    aux[A_CUSUM_N] = 0.0;
+    aux[A_GPS_HOLD] = -INFINITY;
+    aux[A_GPS_REJ] = 0.0;
+    aux[A_STEP_FLAG] = 0.0;
+    aux[A_LOGLIK] = 0.0;
+    aux[A_STILL] = 0.0;
+    aux[A_IMU_TO] = 0.0;
+    aux[A_ODO_TO] = 0.0;
+    aux[A_GPS_TO] = 0.0;
+    mem_reset(mem);
+    cnt[C_INIT] += 1;
+    condition_cov(P, cfg, cnt);
+    return O_INITIALISED;
+}
+
+/* ------------------------------------------------------------------ IMU */
+static long step_imu(double *x, double *P, double *aux, long *cnt, double *mem, const double *cfg,
+                     const double *ts, const double *tg, const double *tk, long nv, double t, double fx,
+                     double fy, double fz, double wx, double wy, double wz) {
+    if (!(isfinite(t) && isfinite(fx) && isfinite(fy) && isfinite(fz) && isfinite(wx) && isfinite(wy)
+          && isfinite(wz)) || fabs(fx) > 300.0 || fabs(fy) > 300.0 || fabs(fz) > 300.0 || fabs(wz) > 100.0) {
+        cnt[C_IMU_BAD] += 1;
+        return O_INVALID;
+    }
+    if (aux[A_INIT] == 0.0) {
+        cnt[C_NOT_INIT] += 1;
+        return O_NOT_INIT;
+    }
+    if (aux[A_T_STATE] - t > cfg[K_LATE_TOL]) {
+        cnt[C_IMU_LATE] += 1;
+        return O_LATE;
+    }
+    predict_to(x, P, aux, cnt, cfg, ts, tg, nv, t);
+    double dt_imu = t - aux[A_T_IMU];
+    double alpha = dt_imu / cfg[K_FX_EWMA_TAU];
+    if (alpha > 1.0 || cnt[C_IMU_OK] == 0) alpha = 1.0;
+    if (alpha < 0.0) alpha = 0.0;
+    double d = fx - aux[A_FX_MEAN];
+    aux[A_FX_MEAN] += alpha * d;
+    aux[A_FX_VAR] = (1.0 - alpha) * (aux[A_FX_VAR] + alpha * d * d);
+    aux[A_FX] = fx;
+    aux[A_FY] = fy;
+    aux[A_GZ] = wz;
+    aux[A_T_IMU] = t;
+    mem_push_imu(mem, t, fx, fy);
+    cnt[C_IMU_OK] += 1;
+    check_timeouts(aux, cnt, cfg, t);
+    aux[A_LAST_NIS_GYRO] = -1.0;
+    aux[A_GYRO_OK] = 0.0;
+    if (cfg[K_USE_GYRO] != 0.0 && fabs(x[V]) >= cfg[K_GYRO_MIN_SPEED]) {
+        double H[2 * NX] = {0}, R[4] = {0}, y[2] = {0};
+        Innov in;
+        double k = interp_at(ts, tk, nv, x[S]);
+        H[S] = x[V] * slope_at(ts, tk, nv, x[S]);
+        H[V] = k;
+        H[BG] = 1.0;
+        R[0] = pow(cfg[K_GYRO_SIGMA], 2);
+        y[0] = wz - (x[V] * k + x[BG]);
+        innovation(P, H, R, y, 1, &in);
+        aux[A_LAST_NIS_GYRO] = in.nis;
+        if (in.nis <= cfg[K_GATE_GYRO]) {
+            apply_update(x, P, H, R, y, 1, &in, cfg, cnt);
+            cnt[C_GYRO_OK] += 1;
+            aux[A_GYRO_OK] = 1.0;
+        } else {
+            cnt[C_GYRO_GATED] += 1;
+        }
+    }
+    return O_ACCEPTED;
+}
+
+/* ------------------------------------------------------------------ odometer (+ slip, ZUPT) */
+static long step_odo(double *x, double *P, double *aux, long *cnt, double *mem, const double *cfg,
+                     const double *ts, const double *tg, long nv, double t, double speed, double sigma) {
+    if (!(isfinite(t) && isfinite(speed) && isfinite(sigma)) || sigma <= 0.0 || fabs(speed) > 300.0) {
+        cnt[C_ODO_BAD] += 1;
+        return O_INVALID;
+    }
+    if (aux[A_INIT] == 0.0) {
+        cnt[C_NOT_INIT] += 1;
+        return O_NOT_INIT;
+    }
+    if (aux[A_T_STATE] - t > cfg[K_LATE_TOL]) {
+        cnt[C_ODO_LATE] += 1;
+        return O_LATE;
+    }
+    predict_to(x, P, aux, cnt, cfg, ts, tg, nv, t);
+    check_timeouts(aux, cnt, cfg, t);
+    double sig = sigma > cfg[K_ODO_SIGMA_MIN] ? sigma : cfg[K_ODO_SIGMA_MIN];
+    double H[2 * NX] = {0}, R[4] = {0}, y[2] = {0};
+    Innov in;
+    double d = aux[A_DIR];
+    H[V] = d * (1.0 + x[KO]);
+    H[KO] = d * x[V];
+    R[0] = sig * sig + pow(cfg[K_ODO_QUANT], 2) / 12.0;
+    y[0] = speed - d * x[V] * (1.0 + x[KO]);
+    innovation(P, H, R, y, 1, &in);
+    double nis = in.nis;
+    aux[A_LAST_NIS_ODO] = nis;
+    int imu_timely = (t - aux[A_T_IMU]) <= cfg[K_IMU_TIMEOUT];
+    double fxv = aux[A_FX_VAR] > 0.0 ? aux[A_FX_VAR] : 0.0;
+    int still = fabs(speed) < cfg[K_STILL_SPEED] && imu_timely && sqrt(fxv) < cfg[K_STILL_FX_STD];
+    aux[A_STILL] = still ? 1.0 : 0.0;
+    int use = 0;
+    long outcome = O_GATED;
+    if (nis > cfg[K_GATE_ODO]) {
+        aux[A_SLIP_BAD] += 1.0;
+        aux[A_SLIP_GOOD] = 0.0;
+        cnt[C_ODO_GATED] += 1;
+        if (aux[A_SLIP] == 0.0 && aux[A_SLIP_BAD] >= cfg[K_SLIP_CONFIRM_N]) {
+            aux[A_SLIP] = 1.0;
+            aux[A_SLIP_T0] = t;
+            cnt[C_SLIP] += 1;
+            rewind_imu_only(x, P, aux, cnt, cfg, ts, tg, nv, mem);
+        } else if (aux[A_SLIP] != 0.0 && t - aux[A_SLIP_T0] > cfg[K_SLIP_MAX_S]) {
+            PIJ(P, V, V) += y[0] * y[0];
+            innovation(P, H, R, y, 1, &in);
+            nis = in.nis;
+            use = 1;
+            aux[A_SLIP] = 0.0;
+            aux[A_SLIP_BAD] = 0.0;
+            cnt[C_ODO_REANCHOR] += 1;
+        }
+    } else if (aux[A_SLIP] != 0.0) {
+        aux[A_SLIP_GOOD] += 1.0;
+        if (aux[A_SLIP_GOOD] >= cfg[K_SLIP_RELEASE_N]) {
+            aux[A_SLIP] = 0.0;
+            aux[A_SLIP_BAD] = 0.0;
+            use = 1;
+        } else {
+            cnt[C_ODO_GATED] += 1;
+        }
+    } else {
+        aux[A_SLIP_BAD] = 0.0;
+        use = 1;
+    }
+    if (use) {
+        if (apply_update(x, P, H, R, y, 1, &in, cfg, cnt)) {
+            cnt[C_ODO_OK] += 1;
+            aux[A_T_ODO] = t;
+            outcome = O_ACCEPTED;
+            if (aux[A_SLIP] == 0.0 && aux[A_SLIP_BAD] == 0.0 && nis <= cfg[K_GATE_ODO] / 4.0)
+                mem_rotate(x, P, aux, mem, cfg, t);
+        }
+    }
+    if (still) {
+        memset(H, 0, sizeof(double) * NX); /* row 0 */
+        H[V] = 1.0;
+        R[0] = pow(cfg[K_ZUPT_SIGMA], 2);
+        y[0] = -x[V];
+        innovation(P, H, R, y, 1, &in);
+        if (in.nis <= cfg[K_GATE_ZUPT])
+            if (apply_update(x, P, H, R, y, 1, &in, cfg, cnt)) cnt[C_ZUPT] += 1;
+    }
+    return outcome;
+}
+
+/* ------------------------------------------------------------------ GNSS */
+static long step_gps(double *x, double *P, double *aux, long *cnt, const double *cfg, const double *ts,
+                     const double *te, const double *tn, const double *tg, long nv, double t, double east,
+                     double north, double sigma_h, long fix_quality) {
+    if (fix_quality == 0) {
+        cnt[C_GPS_NOFIX] += 1;
+        return O_NO_FIX;
+    }
+    if (!(isfinite(t) && isfinite(east) && isfinite(north)) || fabs(east) > 1e7 || fabs(north) > 1e7
+        || (isfinite(sigma_h) && sigma_h > 1e4) || isinf(sigma_h)) {
+        cnt[C_GPS_BAD] += 1;
+        return O_INVALID;
+    }
+    if (aux[A_INIT] == 0.0) {
+        cnt[C_NOT_INIT] += 1;
+        return O_NOT_INIT;
+    }
+    double dl = aux[A_T_STATE] - t;
+    if (dl > cfg[K_GPS_LATE_MAX]) {
+        cnt[C_GPS_LATE] += 1;
+        return O_LATE;
+    }
+    if (dl <= 0.0) {
+        predict_to(x, P, aux, cnt, cfg, ts, tg, nv, t);
+        dl = 0.0;
+    }
+    if (t - aux[A_T_GPS] > cfg[K_GPS_TIMEOUT] && aux[A_GPS_REJ] == 0.0) {
+        double gm = cfg[K_GM_SIGMA];
+        for (int i = 0; i < NX; i++) {
+            PIJ(P, GE, i) = 0.0;
+            PIJ(P, i, GE) = 0.0;
+            PIJ(P, GN, i) = 0.0;
+            PIJ(P, i, GN) = 0.0;
+        }
+        x[GE] = 0.0;
+        x[GN] = 0.0;
+        PIJ(P, GE, GE) = gm * gm;
+        PIJ(P, GN, GN) = gm * gm;
+    }
+    check_timeouts(aux, cnt, cfg, t > aux[A_T_STATE] ? t : aux[A_T_STATE]);
+    /* gps_model */
+    double s_eval = x[S] - x[V] * dl, e, n, de, dn;
+    geom_at(ts, te, tn, nv, s_eval, &e, &n, &de, &dn);
+    double H[2 * NX] = {0}, R[4] = {0}, y[2];
+    H[S] = de;
+    H[NX + S] = dn;
+    H[V] = -dl * de;
+    H[NX + V] = -dl * dn;
+    H[GE] = 1.0;
+    H[NX + GN] = 1.0;
+    double he = e + x[GE], hn = n + x[GN];
+    y[0] = east - he;
+    y[1] = north - hn;
+    double sw = cfg[K_GPS_WHITE];
+    if (isfinite(sigma_h) && sigma_h > 0.0 && sigma_h > cfg[K_GPS_NOMINAL_SIGMA_H])
+        sw *= sigma_h / cfg[K_GPS_NOMINAL_SIGMA_H];
+    double tnorm = sqrt(de * de + dn * dn);
+    double ue = de / tnorm, un = dn / tnorm;
+    double sl2 = pow(cfg[K_TRACK_LAT], 2);
+    R[0] = sw * sw + sl2 * un * un;
+    R[3] = sw * sw + sl2 * ue * ue;
+    R[1] = -sl2 * ue * un;
+    R[2] = R[1];
+    if (dl > 0.0) {
+        double qa = cfg[K_Q_ACC] * dl * dl * dl / 3.0;
+        R[0] += qa * ue * ue;
+        R[3] += qa * un * un;
+        R[1] += qa * ue * un;
+        R[2] += qa * ue * un;
+    }
+    Innov in;
+    innovation(P, H, R, y, 2, &in);
+    aux[A_LAST_NIS_GPS] = in.nis;
+    double along = y[0] * ue + y[1] * un;
+    if (t < aux[A_GPS_HOLD]) {
+        cnt[C_GPS_HELD] += 1;
+        return O_HELD_OFF;
+    }
+    if (in.nis > cfg[K_GATE_GPS]) {
+        cnt[C_GPS_GATED] += 1;
+        aux[A_GPS_REJ] += 1.0;
+        if (aux[A_GPS_REJ] == 1.0) {
+            aux[A_T_FIRST_GPS_REJ] = t;
+            aux[A_REJ_DS] = along;
+            aux[A_REJ_MAXDEV] = 0.0;
+            if (sqrt(y[0] * y[0] + y[1] * y[1]) >= cfg[K_STEP_MIN_M]) {
+                aux[A_STEP_FLAG] = 1.0;
+                cnt[C_STEP] += 1;
+            }
+        } else {
+            double dev = fabs(along - aux[A_REJ_DS]);
+            aux[A_REJ_MAXDEV] = aux[A_REJ_MAXDEV] > dev ? aux[A_REJ_MAXDEV] : dev;
+        }
+        if (t - aux[A_T_FIRST_GPS_REJ] >= cfg[K_REACQ_S] && aux[A_REJ_MAXDEV] <= cfg[K_REACQ_CONSIST_M]) {
+            PIJ(P, S, S) += along * along + y[0] * y[0] + y[1] * y[1];
+            innovation(P, H, R, y, 2, &in);
+            if (apply_update(x, P, H, R, y, 2, &in, cfg, cnt)) {
+                cnt[C_GPS_REACQ] += 1;
+                aux[A_GPS_REJ] = 0.0;
+                aux[A_STEP_FLAG] = 0.0;
+                aux[A_T_GPS] = t;
+                aux[A_GPS_E] = east;
+                aux[A_GPS_N] = north;
+                return O_ACCEPTED;
+            }
+        } else if (t - aux[A_T_FIRST_GPS_REJ] >= cfg[K_REACQ_S]) {
+            aux[A_GPS_REJ] = 1.0;
+            aux[A_T_FIRST_GPS_REJ] = t;
+            aux[A_REJ_DS] = along;
+            aux[A_REJ_MAXDEV] = 0.0;
+        }
+        return O_GATED;
+    }
+    double s_along = ue * (in.Sm[0] * ue + in.Sm[1] * un) + un * (in.Sm[2] * ue + in.Sm[3] * un);
+    double r = along / sqrt(s_along);
+    double kk = cfg[K_CUSUM_K];
+    double cp = aux[A_CUSUM_P] + r - kk, cn = aux[A_CUSUM_N] - r - kk;
+    aux[A_CUSUM_P] = cp > 0.0 ? cp : 0.0;
+    aux[A_CUSUM_N] = cn > 0.0 ? cn : 0.0;
+    if (aux[A_CUSUM_P] > cfg[K_CUSUM_H] || aux[A_CUSUM_N] > cfg[K_CUSUM_H]) {
+        cnt[C_RAMP] += 1;
+        aux[A_RAMP_T] = t;
+        aux[A_GPS_HOLD] = t + cfg[K_GPS_HOLDOFF_S];
+        aux[A_CUSUM_P] = 0.0;
+        aux[A_CUSUM_N] = 0.0;
+        cnt[C_GPS_GATED] += 1;
+        return O_GATED;
+    }
+    if (!apply_update(x, P, H, R, y, 2, &in, cfg, cnt)) {
+        cnt[C_GPS_BAD] += 1;
+        return O_INVALID;
+    }
+    aux[A_GPS_REJ] = 0.0;
+    aux[A_STEP_FLAG] = 0.0;
+    aux[A_T_GPS] = t;
+    aux[A_GPS_E] = east;
+    aux[A_GPS_N] = north;
+    cnt[C_GPS_OK] += 1;
+    if (dl > 0.0) cnt[C_GPS_LATE_USED] += 1;
+    return O_ACCEPTED;
+}
+
+/* ------------------------------------------------------------------ the loop of sfa.batch.run_packed */
+long sfa_run_packed(long n, const long *kind, const double *t, const double *vals, double *x, double *P,
+                    double *aux, long *cnt, double *mem, const double *cfg, long nv, const double *ts,
+                    const double *te, const double *tn, const double *tg, const double *tk, double *out_f,
+                    long *out_i) {
+    for (long i = 0; i < n; i++) {
+        long k = kind[i];
+        double ti = t[i];
+        const double *v = vals + i * NVALS;
+        long o;
+        if (k == 1) {
+            o = step_imu(x, P, aux, cnt, mem, cfg, ts, tg, tk, nv, ti, v[0], v[1], v[2], v[3], v[4], v[5]);
+        } else if (k == 2) {
+            o = step_odo(x, P, aux, cnt, mem, cfg, ts, tg, nv, ti, v[0], v[1]);
+        } else if (k == 3) {
+            long fq = !isfinite(v[3]) ? -1 : (long)v[3];
+            o = step_gps(x, P, aux, cnt, cfg, ts, te, tn, tg, nv, ti, v[0], v[1], v[2], fq);
+        } else if (k == 8) {
+            o = step_init(x, P, aux, cnt, mem, cfg, ts, tg, nv, ti, v[0], v[1], v[3]);
+        } else {
+            o = O_INVALID;
+        }
+        long bits;
+        double sig;
+        long st = status_of(x, P, aux, cfg, aux[A_T_STATE], &bits, &sig);
+        out_f[i * 4 + 0] = aux[A_T_STATE];
+        out_f[i * 4 + 1] = x[S];
+        out_f[i * 4 + 2] = x[V];
+        out_f[i * 4 + 3] = sig;
+        out_i[i * 3 + 0] = o;
+        out_i[i * 3 + 1] = st;
+        out_i[i * 3 + 2] = bits;
+    }
+    return n;
+}
