@@ -11,7 +11,7 @@ from listener.codec import DecodeError, ImuSample, decode_input, encode_input
 from tools.faults.config import Impairments, impairments_from_dict, load_profile
 from tools.faults.core import FORGE_SENDER, FaultCore
 from tools.faults.errors import FaultConfigError
-from tools.faults.forge import flip_bits, forge_invalid, forge_valid, garbage, truncate
+from tools.faults.forge import flip_bits, forge_invalid, forge_valid, garbage, garbage_batch, truncate
 
 A = ("127.0.0.1", 47001)
 B = ("127.0.0.1", 47002)
@@ -171,6 +171,11 @@ def test_forged_invalid_and_garbage_are_always_rejected_forged_valid_accepted():
             with pytest.raises(DecodeError):
                 decode_input(data)
         decode_input(forge_valid(rng, 1.7e9))  # raises if not valid
+    batch = garbage_batch(rng, 5000, 64)
+    assert len(batch) == 5000 and max(map(len, batch)) <= 64 and any(len(b) == 0 for b in batch)
+    for data in batch:
+        with pytest.raises(DecodeError):
+            decode_input(data)
 
 
 def test_flip_and_truncate_helpers():

@@ -25,7 +25,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from tools.faults.config import Impairments
-from tools.faults.forge import flip_bits, forge_invalid, forge_valid, garbage, truncate
+from tools.faults.forge import flip_bits, forge_invalid, forge_valid, garbage_batch, truncate
 
 FORGE_SENDER = ("forge", 0)  #: sender key of injected datagrams that do not pose as a real sender
 FAULT_SENDER_ADDR = ("127.0.0.1", 40999)  #: where the replay path says such datagrams come from
@@ -255,19 +255,24 @@ class FaultCore:
             self.counters[kind] += 1
             out.append((t, data, self._forge_sender()))
             self.counters["emitted"] += 1
-        while self._next_garbage is not None and self._next_garbage <= now and budget > 0:
-            t = self._next_garbage
-            if t >= end:
-                self._next_garbage = None
-                break
-            budget -= 1
-            self._garbage += 1
-            self._next_garbage = self.start + imp.inject_start_s + self._garbage / imp.garbage_rate_hz
-            if self.in_blackout(t):
-                continue
-            self.counters["garbage"] += 1
-            self.counters["emitted"] += 1
-            out.append((t, garbage(self._inj_rng, imp.garbage_max_bytes), FORGE_SENDER))
+        if self._next_garbage is not None and self._next_garbage <= now and budget > 0:
+            # the k-th garbage datagram is due at start + inject_start + k / rate: all due ones at once
+            t0 = self.start + imp.inject_start_s
+            last_due = math.floor((min(now, end) - t0) * imp.garbage_rate_hz + 1e-9)
+            if (end - t0) * imp.garbage_rate_hz == last_due:  # the window is half-open
+                last_due -= 1
+            k = max(0, min(last_due + 1 - self._garbage, budget))
+            times = t0 + (self._garbage + np.arange(k)) / imp.garbage_rate_hz
+            self._garbage += k
+            nxt = t0 + self._garbage / imp.garbage_rate_hz
+            self._next_garbage = nxt if nxt < end else None
+            datagrams = garbage_batch(self._inj_rng, k, imp.garbage_max_bytes) if k else []
+            for t, data in zip(times.tolist(), datagrams, strict=True):
+                if self.in_blackout(t):
+                    continue
+                self.counters["garbage"] += 1
+                self.counters["emitted"] += 1
+                out.append((t, data, FORGE_SENDER))
         return out
 
     def _forge_sender(self) -> Hashable:
