@@ -120,8 +120,9 @@ def decode_batch(data: np.ndarray, offset: np.ndarray, length: np.ndarray) -> De
     ni = np.zeros(n, dtype=np.int64)
     nd = np.zeros(n, dtype=np.int64)
     values = np.empty((n, MAX_FIELDS))
-    decode_many(data, offset, length, FORM_SIZE, FIELD_LO, FIELD_HI, FIELD_LO_OPEN, ok, stype, seq, ni, nd,
-                values)
+    decode_many(
+        data, offset, length, FORM_SIZE, FIELD_LO, FIELD_HI, FIELD_LO_OPEN, ok, stype, seq, ni, nd, values
+    )
     return DecodedBatch(ok, stype, seq, ni, nd, values)
 
 

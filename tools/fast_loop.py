@@ -20,8 +20,9 @@ from sfa import layout as L
 
 
 @njit(cache=True)
-def run_replay_loop(kind, t, vals, x, P, aux, cnt, mem, cfg, ts, te, tn, tg, tk, last_epoch, last_s,
-                    out_f, out_i):
+def run_replay_loop(
+    kind, t, vals, x, P, aux, cnt, mem, cfg, ts, te, tn, tg, tk, last_epoch, last_s, out_f, out_i
+):
     """Step through packed measurements (layout of sfa.batch.Packed).
 
     out_f (n, 5): epoch [s], s [m], v [m/s], sigma_s [m], nis (NaN for IMU/init);

@@ -105,6 +105,11 @@ def pack_capture(path: str | Path, track, port: int) -> PackedCapture | str:
     init[0, 1] = gv[ni + 0]  # vx
     init[0, 2] = line_id
     init[0, 3] = 1.0
-    return PackedCapture(np.concatenate([[8], kind]).astype(np.int64), np.concatenate([[gv[ni + 4]], t_s]),
-                         np.vstack([init, vals]), line_id, int(scan.time_s.size),
-                         float(scan.time_s[-1] - scan.time_s[0]))
+    return PackedCapture(
+        np.concatenate([[8], kind]).astype(np.int64),
+        np.concatenate([[gv[ni + 4]], t_s]),
+        np.vstack([init, vals]),
+        line_id,
+        int(scan.time_s.size),
+        float(scan.time_s[-1] - scan.time_s[0]),
+    )

@@ -33,8 +33,12 @@ F_OTHER_PORT = 1
 F_NOT_UDP = 2
 F_IP_FRAGMENT = 3
 F_UDP_LENGTH_MISMATCH = 4
-SKIP_REASONS = {F_OTHER_PORT: "other_port", F_NOT_UDP: "not_udp", F_IP_FRAGMENT: "ip_fragment",
-                F_UDP_LENGTH_MISMATCH: "udp_length_mismatch"}
+SKIP_REASONS = {
+    F_OTHER_PORT: "other_port",
+    F_NOT_UDP: "not_udp",
+    F_IP_FRAGMENT: "ip_fragment",
+    F_UDP_LENGTH_MISMATCH: "udp_length_mismatch",
+}
 
 # why the scanner gave up (the exact reader takes over)
 U_OK = 0
@@ -74,8 +78,9 @@ def _u16be(d, i):
 
 @njit(cache=True)
 def _u32le(d, i):
-    return (np.int64(d[i]) | (np.int64(d[i + 1]) << 8) | (np.int64(d[i + 2]) << 16)
-            | (np.int64(d[i + 3]) << 24))
+    return (
+        np.int64(d[i]) | (np.int64(d[i + 1]) << 8) | (np.int64(d[i + 2]) << 16) | (np.int64(d[i + 3]) << 24)
+    )
 
 
 @njit(cache=True)
@@ -135,8 +140,12 @@ def _scan(d, port, out_t, out_ip, out_port, out_off, out_len, out_frame, skip):
             s += 1
             continue
         out_t[k] = np.float64(sec) + np.float64(usec) / 1e6  # as dpkt: tv_sec + tv_usec / 1E6
-        out_ip[k] = (np.uint32(d[ip + 12]) << 24) | (np.uint32(d[ip + 13]) << 16) \
-            | (np.uint32(d[ip + 14]) << 8) | np.uint32(d[ip + 15])
+        out_ip[k] = (
+            (np.uint32(d[ip + 12]) << 24)
+            | (np.uint32(d[ip + 13]) << 16)
+            | (np.uint32(d[ip + 14]) << 8)
+            | np.uint32(d[ip + 15])
+        )
         out_port[k] = _u16be(d, udp)
         out_off[k] = udp + 8
         out_len[k] = plen
@@ -176,8 +185,17 @@ def scan_capture(path: str | Path, port: int) -> ScannedCapture | str:
     status, frames, k, s = _scan(data, int(port), out_t, out_ip, out_port, out_off, out_len, out_frame, skip)
     if status != U_OK:
         return f"record {frames}: {UNSUPPORTED_REASONS[int(status)]}"
-    return ScannedCapture(data, out_t[:k].copy(), out_ip[:k].copy(), out_port[:k].copy(), out_off[:k].copy(),
-                          out_len[:k].copy(), out_frame[:k].copy(), int(frames), skip[:s].copy())
+    return ScannedCapture(
+        data,
+        out_t[:k].copy(),
+        out_ip[:k].copy(),
+        out_port[:k].copy(),
+        out_off[:k].copy(),
+        out_len[:k].copy(),
+        out_frame[:k].copy(),
+        int(frames),
+        skip[:s].copy(),
+    )
 
 
 def ipv4_text(addr: int) -> str:

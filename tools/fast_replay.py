@@ -111,7 +111,8 @@ class _Prefix:
         self.seen_new: set[int] = set()
         self.pipe.on_output = self.by_seq.__setitem__
         self.pipe.on_update = lambda u: self.upd.append(
-            (u.t_s, u.kind, int(u.outcome), math.nan if u.nis is None else float(u.nis)))
+            (u.t_s, u.kind, int(u.outcome), math.nan if u.nis is None else float(u.nis))
+        )
 
     def record(self, outputs, now) -> None:
         from listener.codec import decode_output
@@ -121,9 +122,23 @@ class _Prefix:
             est = self.by_seq[msg.seq]
             retransmit = 1 if msg.seq in self.seen_new else 0
             self.seen_new.add(msg.seq)
-            self.est_rows.append((msg.epoch, msg.arc_length, msg.seq, retransmit, now, est.speed_mps,
-                                  est.sigma_s_m, est.interval_low_m, est.interval_high_m, int(est.status),
-                                  -1 if est.line_id is None else est.line_id, est.lat_deg, est.lon_deg))
+            self.est_rows.append(
+                (
+                    msg.epoch,
+                    msg.arc_length,
+                    msg.seq,
+                    retransmit,
+                    now,
+                    est.speed_mps,
+                    est.sigma_s_m,
+                    est.interval_low_m,
+                    est.interval_high_m,
+                    int(est.status),
+                    -1 if est.line_id is None else est.line_id,
+                    est.lat_deg,
+                    est.lon_deg,
+                )
+            )
         if len(self.seen_new) > 70000:
             self.seen_new.clear()
 
@@ -147,10 +162,25 @@ class _Prefix:
             return False
         m = pipe.metrics()
         seq = m["sequencing"]
-        clean = all(seq[k] == 0 for k in ("reordered", "duplicates", "lost", "late", "resyncs", "overflow",
-                                          "probation_drops", "pending"))
-        return clean and m["merge"]["pending"] == 0 and m["clock"]["undated_pending"] == 0 \
+        clean = all(
+            seq[k] == 0
+            for k in (
+                "reordered",
+                "duplicates",
+                "lost",
+                "late",
+                "resyncs",
+                "overflow",
+                "probation_drops",
+                "pending",
+            )
+        )
+        return (
+            clean
+            and m["merge"]["pending"] == 0
+            and m["clock"]["undated_pending"] == 0
             and seq["evictions"] == 0
+        )
 
 
 def _gps_of(dec, i):
@@ -175,7 +205,7 @@ def _replay_scanned(scan, track, options):
 
     def payload(i: int) -> bytes:
         o = int(scan.offset[i])
-        return bytes(scan.data[o:o + int(scan.length[i])])
+        return bytes(scan.data[o : o + int(scan.length[i])])
 
     def addr(i: int):
         return (ipv4_text(scan.src_ip[i]), int(scan.src_port[i]))
@@ -240,8 +270,26 @@ def _replay_scanned(scan, track, options):
     last_s = math.nan if last is None else float(last.arc_length_m)
     out_f = np.zeros((nm, 5))
     out_i = np.zeros((nm, 4), dtype=np.int64)
-    run_replay_loop(kind, t_s, vals, x, P, aux, cnt, mem, cfg, line.s_m, line.east_m, line.north_m,
-                    line.grade, line.curvature_inv_m, last_epoch, last_s, out_f, out_i)
+    run_replay_loop(
+        kind,
+        t_s,
+        vals,
+        x,
+        P,
+        aux,
+        cnt,
+        mem,
+        cfg,
+        line.s_m,
+        line.east_m,
+        line.north_m,
+        line.grade,
+        line.curvature_inv_m,
+        last_epoch,
+        last_s,
+        out_f,
+        out_i,
+    )
 
     # 4. refuse after the fact near junctions of this line (the exact filter would branch there)
     why = _junction_reason(filt, line, out_f[:, 1], hyp)
@@ -256,10 +304,16 @@ def _replay_scanned(scan, track, options):
     send = out_i[:, 3] == 1
     s_out = out_f[send, 1]
     sig_out = out_f[send, 3]
-    lat_out = interp_many(line.s_m, line.lat_deg, s_out, np.ones(s_out.size, dtype=np.bool_)) \
-        if line.lat_deg is not None else np.full(s_out.size, math.nan)
-    lon_out = interp_many(line.s_m, line.lon_deg, s_out, np.ones(s_out.size, dtype=np.bool_)) \
-        if line.lon_deg is not None else np.full(s_out.size, math.nan)
+    lat_out = (
+        interp_many(line.s_m, line.lat_deg, s_out, np.ones(s_out.size, dtype=np.bool_))
+        if line.lat_deg is not None
+        else np.full(s_out.size, math.nan)
+    )
+    lon_out = (
+        interp_many(line.s_m, line.lon_deg, s_out, np.ones(s_out.size, dtype=np.bool_))
+        if line.lon_deg is not None
+        else np.full(s_out.size, math.nan)
+    )
     link = pipe.link
     start_seq = options.config.link.start_seq
     k_out = int(send.sum())
@@ -304,8 +358,9 @@ def _replay_scanned(scan, track, options):
         "t": np.concatenate([np.array([g[0] for g in prefix.gps_rows], dtype=float), scan.time_s[grows]]),
         "lat": np.concatenate([np.array([g[1] for g in prefix.gps_rows], dtype=float), np.array(g_lat)]),
         "lon": np.concatenate([np.array([g[2] for g in prefix.gps_rows], dtype=float), np.array(g_lon)]),
-        "fix_quality": np.concatenate([np.array([g[3] for g in prefix.gps_rows], dtype=np.int64),
-                                       np.array(g_fq, dtype=np.int64)]),
+        "fix_quality": np.concatenate(
+            [np.array([g[3] for g in prefix.gps_rows], dtype=np.int64), np.array(g_fq, dtype=np.int64)]
+        ),
     }
 
     # 6. counters: the pipeline's own objects advanced as the exact replay would have advanced them
@@ -338,23 +393,34 @@ def _replay_scanned(scan, track, options):
         c["stops"] += 1
     if k_out:
         j = int(np.flatnonzero(send)[-1])
-        pipe.last_estimate = _estimate_row(filt, line, out_f[j], out_i[j], d, z, float(lat_out[-1]),
-                                           float(lon_out[-1]))
+        pipe.last_estimate = _estimate_row(
+            filt, line, out_f[j], out_i[j], d, z, float(lat_out[-1]), float(lon_out[-1])
+        )
     metrics = pipe.metrics()
     seqm = metrics["sequencing"]
     n_valid = int(ok.sum())
     for k in ("received", "released", "in_order"):
         seqm[k] += n_valid
     metrics["link"]["outputs"] += k_out
-    metrics["fast_replay"] = {"exact_prefix_datagrams": h, "compiled_datagrams": int(rows.size),
-                              "retransmissions_simulated": "exact prefix only"}
+    metrics["fast_replay"] = {
+        "exact_prefix_datagrams": h,
+        "compiled_datagrams": int(rows.size),
+        "retransmissions_simulated": "exact prefix only",
+    }
     last_frame = int(scan.frame_index[n - 1]) if stopped else scan.frames
     skipped = Counter()
     for frame, code in scan.skipped_at:
         if frame <= last_frame:
             skipped[SKIP_REASONS[int(code)]] += 1
-    result = ReplayResult(label=options.label, estimates=est, updates=updates, gps=gps, metrics=metrics,
-                          datagrams=n, skipped_sensor=0)
+    result = ReplayResult(
+        label=options.label,
+        estimates=est,
+        updates=updates,
+        gps=gps,
+        metrics=metrics,
+        datagrams=n,
+        skipped_sensor=0,
+    )
     result.capture = {"frames": last_frame, "datagrams": n, "skipped": dict(skipped)}
     return result, _info(True, "", h, int(rows.size))
 
@@ -409,10 +475,22 @@ def _estimate_row(filt, line, f, i, d, z, lat, lon):
     from sfa.layout import FilterStatus, reasons_from_bits
 
     s, sig = float(f[1]), float(f[3])
-    return Estimate(epoch_s=float(f[0]), arc_length_m=s, speed_mps=float(d * f[2]), sigma_s_m=sig,
-                    interval_low_m=s - z * sig, interval_high_m=s + z * sig, status=FilterStatus(int(i[1])),
-                    reasons=reasons_from_bits(int(i[2])), line_id=line.line_id, lat_deg=lat, lon_deg=lon,
-                    confidence=filt.config.confidence, hypotheses=1, direction=int(d))
+    return Estimate(
+        epoch_s=float(f[0]),
+        arc_length_m=s,
+        speed_mps=float(d * f[2]),
+        sigma_s_m=sig,
+        interval_low_m=s - z * sig,
+        interval_high_m=s + z * sig,
+        status=FilterStatus(int(i[1])),
+        reasons=reasons_from_bits(int(i[2])),
+        line_id=line.line_id,
+        lat_deg=lat,
+        lon_deg=lon,
+        confidence=filt.config.confidence,
+        hypotheses=1,
+        direction=int(d),
+    )
 
 
 __all__ = ["FastReplayInfo", "fast_replay", "try_fast_replay", "MAX_EXACT_PREFIX"]

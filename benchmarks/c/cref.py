@@ -24,8 +24,24 @@ HERE = Path(__file__).resolve().parent
 SOURCE = HERE / "sfa_step.c"
 CFLAGS = ("-O2", "-fPIC", "-shared", "-std=c99")
 _PREFIXES = ("A_", "C_", "K_", "R_", "MEM_")
-_NAMES = ("S", "V", "BA", "KO", "GE", "GN", "BG", "MY", "SF", "NX", "NAUX", "NCNT", "NCFG", "NMEM", "NH",
-          "SNAP")
+_NAMES = (
+    "S",
+    "V",
+    "BA",
+    "KO",
+    "GE",
+    "GN",
+    "BG",
+    "MY",
+    "SF",
+    "NX",
+    "NAUX",
+    "NCNT",
+    "NCFG",
+    "NMEM",
+    "NH",
+    "SNAP",
+)
 
 
 class CReferenceUnavailable(RuntimeError):
@@ -37,8 +53,11 @@ def layout_header() -> str:
     from sfa import layout
     from sfa.batch import NV
 
-    lines = ["/* generated from sfa/layout.py by benchmarks/c/cref.py: do not edit */",
-             "#ifndef SFA_LAYOUT_H", "#define SFA_LAYOUT_H"]
+    lines = [
+        "/* generated from sfa/layout.py by benchmarks/c/cref.py: do not edit */",
+        "#ifndef SFA_LAYOUT_H",
+        "#define SFA_LAYOUT_H",
+    ]
     for name in sorted(vars(layout)):
         value = getattr(layout, name)
         if type(value) is not int:
@@ -80,8 +99,26 @@ class CReference:
         dptr = np.ctypeslib.ndpointer(dtype=np.float64, flags="C_CONTIGUOUS")
         lptr = np.ctypeslib.ndpointer(dtype=np.int64, flags="C_CONTIGUOUS")
         fn.restype = ctypes.c_long
-        fn.argtypes = [ctypes.c_long, lptr, dptr, dptr, dptr, dptr, dptr, lptr, dptr, dptr, ctypes.c_long,
-                       dptr, dptr, dptr, dptr, dptr, dptr, lptr]
+        fn.argtypes = [
+            ctypes.c_long,
+            lptr,
+            dptr,
+            dptr,
+            dptr,
+            dptr,
+            dptr,
+            lptr,
+            dptr,
+            dptr,
+            ctypes.c_long,
+            dptr,
+            dptr,
+            dptr,
+            dptr,
+            dptr,
+            dptr,
+            lptr,
+        ]
         self._fn = fn
 
     def run_packed(self, kind, t, vals, x, P, aux, cnt, mem, cfg, ts, te, tn, tg, tk, out_f, out_i) -> None:
@@ -90,8 +127,9 @@ class CReference:
         for name, arr, shape in (("vals", vals, (n, 7)), ("out_f", out_f, (n, 4)), ("out_i", out_i, (n, 3))):
             if arr.shape != shape:
                 raise ValueError(f"{name}: shape {arr.shape}, expected {shape}")
-        self._fn(n, kind, t, vals, x, P, aux, cnt, mem, cfg, int(ts.shape[0]), ts, te, tn, tg, tk, out_f,
-                 out_i)
+        self._fn(
+            n, kind, t, vals, x, P, aux, cnt, mem, cfg, int(ts.shape[0]), ts, te, tn, tg, tk, out_f, out_i
+        )
 
 
 def build(cache_dir: Path | None = None) -> CReference:

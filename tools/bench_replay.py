@@ -1,0 +1,325 @@
+"""Replay throughput rows of ``sfa bench``: one capture, five ways, in the same run.
+
+On one simulator capture (``regional-long``: the whole >= 1 h run in the full mode, its first
+``quick_s`` seconds in the quick mode):
+
+- filter core: ``sfa.batch.run_packed`` over the capture's packed measurements (decode excluded),
+- C reference: benchmarks/c (the same filter step in C, ``cc -O2``) on the same arrays; the core's
+  time is reported as a ratio to it, with the largest difference of their estimates,
+- fast replay end to end: ``tools.fast_replay`` (pcap scan, decode, exact prefix, compiled filter),
+- exact replay end to end: ``tools.replay.replay_capture`` (the listener's pipeline per datagram),
+- naive: per message, dpkt reader + ``listener.codec.decode_input`` + the plain FilterPy EKF
+  (``sfa.baselines.plain_filterpy_ekf``), the "naive per-message FilterPy" figure of issue 7.
+"""
+
+from __future__ import annotations
+
+import importlib.util
+import math
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+
+from tools.bench_table import Row, median_of, timed
+from tools.errors import ToolError
+
+SCENARIO = "regional-long"
+SECTION = "replay"
+
+
+def repo_root() -> Path:
+    return Path(__file__).resolve().parent.parent
+
+
+def load_benchmark_module(name: str):
+    """Import ``benchmarks/<name>.py`` (scripts of the source tree, not an installed package)."""
+    path = repo_root() / "benchmarks" / f"{name}.py"
+    if not path.is_file():
+        raise ToolError(f"{path}: not found (sfa bench runs from a source checkout)")
+    spec = importlib.util.spec_from_file_location(f"sfa_benchmarks_{name.replace('/', '_')}", path)
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    return mod
+
+
+def make_capture(out_dir: Path, duration_s: float | None) -> Path:
+    """``sfa sim regional-long --out-dir`` in a child process; returns the capture path."""
+    cmd = [sys.executable, "-m", "sfa", "sim", SCENARIO, "--out-dir", str(out_dir)]
+    if duration_s is not None:
+        cmd += ["--duration", f"{duration_s:g}"]
+    proc = subprocess.run(cmd, capture_output=True, text=True, timeout=900, check=False)
+    if proc.returncode != 0:
+        raise ToolError(f"sfa sim {SCENARIO} failed: {proc.stderr.strip()[-500:]}")
+    return out_dir / "capture.pcap"
+
+
+def _naive(capture: Path, track, cfg) -> int:
+    """The naive per-message path: dpkt reader, codec per datagram, FilterPy EKF per message."""
+    from listener.codec import DecodeError, decode_input
+    from listener.pipeline import to_measurement
+    from sfa.baselines import plain_filterpy_ekf
+    from tools.capture_reader import read_capture
+
+    meas = []
+    n = 0
+    for d in read_capture(capture, 48000):
+        n += 1
+        try:
+            msg = decode_input(d.payload)
+        except DecodeError:
+            continue
+        epoch = getattr(msg, "epoch", None)
+        if epoch is None:
+            continue
+        meas.append(to_measurement(msg, epoch))
+    plain_filterpy_ekf(track, meas, cfg)
+    return n
+
+
+def replay_rows(tmp: Path, quick: bool, repeats: int, quick_s: float = 300.0, log=print) -> list[Row]:
+    from interface_modules.scenario import load_scenario
+    from interface_modules.tracks import database_path
+    from sfa import layout as L
+    from sfa.batch import run_packed
+    from sfa.presets import filter_config_for
+    from sfa.track_arrays import TrackArrays
+    from tools.fast_pack import pack_capture
+    from tools.fast_replay import try_fast_replay
+    from tools.replay import ReplayOptions, replay_capture
+    from track_db import TrackDatabase
+
+    sc = load_scenario(SCENARIO)
+    db_path = database_path(sc)
+    if db_path is None:  # pragma: no cover - the scenario ships with its GTFS source
+        raise ToolError(f"{SCENARIO}: no track database")
+    track = TrackDatabase.open(db_path)
+    duration = quick_s if quick else None
+    what = f"first {quick_s:g} s" if quick else "whole run"
+    log(f"replay: simulating the {SCENARIO} capture ({what})")
+    capture = make_capture(tmp / "replay", duration)
+    packed = pack_capture(capture, track, 48000)
+    if isinstance(packed, str):
+        raise ToolError(f"{capture}: {packed}")
+    n_meas = int(packed.kind.size)
+    n_dg = packed.datagrams
+    span = f"{packed.duration_s / 60:.0f} min capture, {n_dg:,} datagrams"
+    cfg_obj = filter_config_for(sc.imu.preset, sc.odometer.preset, sc.gps.preset)
+    cfg = cfg_obj.to_array()
+    line = TrackArrays.from_line(track.line(packed.line_id))
+    geometry = (line.s_m, line.east_m, line.north_m, line.grade, line.curvature_inv_m)
+    rows: list[Row] = []
+
+    def fresh():
+        return (
+            np.zeros(L.NX),
+            np.zeros((L.NX, L.NX)),
+            np.zeros(L.NAUX),
+            np.zeros(L.NCNT, dtype=np.int64),
+            np.zeros(L.NMEM),
+            np.zeros((n_meas, 4)),
+            np.zeros((n_meas, 3), dtype=np.int64),
+        )
+
+    last = {}
+
+    def run_core(fn, key):
+        x, P, aux, cnt, mem, out_f, out_i = fresh()
+        dt = timed(
+            lambda: fn(
+                packed.kind, packed.t_s, packed.values, x, P, aux, cnt, mem, cfg, *geometry, out_f, out_i
+            )
+        )
+        last[key] = (out_f, out_i, cnt)
+        return dt
+
+    run_core(run_packed, "numba")  # compile / load the cache outside the timing
+    log(f"replay: filter core ({n_meas:,} measurements) x{repeats}")
+    t_core, t_core_all = median_of(lambda: run_core(run_packed, "numba"), repeats)
+    core_rate = n_meas / t_core
+    c_row = None
+    c_rate = None
+    try:
+        cref = load_benchmark_module("c/cref").build()
+    except Exception as exc:  # noqa: BLE001 - any build problem skips the comparison with its reason
+        cref = None
+        c_note = f"C reference skipped: {exc}"
+    if cref is not None:
+        run_core(cref.run_packed, "c")
+        log(f"replay: C reference x{repeats}")
+        t_c, t_c_all = median_of(lambda: run_core(cref.run_packed, "c"), repeats)
+        fa, ia, ca = last["numba"]
+        fb, ib, cb = last["c"]
+        diff_s = float(np.nanmax(np.abs(fa[:, 1] - fb[:, 1])))
+        same_outcomes = bool(np.array_equal(ia, ib) and np.array_equal(ca, cb))
+        ratio = t_core / t_c
+        c_rate = n_meas / t_c
+        c_row = Row(
+            SECTION,
+            "filter core time / C reference time (same inputs)",
+            ratio,
+            "x",
+            compared=f"C {n_meas / t_c:,.0f} meas/s ({cref.compiler}); max |s_numba - s_C| = "
+            f"{diff_s:.1e} m; outcomes and counters identical: {same_outcomes}",
+            target="<= 3x",
+            met=ratio <= 3.0,
+            repeats=repeats,
+            samples=tuple(a / b for a, b in zip(t_core_all, t_c_all, strict=True)),
+            note="" if ratio <= 3.0 else _core_note(),
+        )
+    rows.append(
+        Row(
+            SECTION,
+            f"filter core alone, sfa.batch.run_packed ({span})",
+            core_rate,
+            "meas/s",
+            compared=f"C reference {'(see next row)' if c_row else 'skipped'}",
+            repeats=repeats,
+            samples=tuple(n_meas / t for t in t_core_all),
+        )
+    )
+    rows.append(
+        c_row
+        or Row(
+            SECTION,
+            "filter core time / C reference time (same inputs)",
+            None,
+            "x",
+            target="<= 3x",
+            note=c_note,
+        )
+    )
+
+    opts = ReplayOptions(config=_listener_config(sc))
+    res, info = try_fast_replay(capture, track, opts)  # compile outside the timing
+    if res is None:
+        rows.append(
+            Row(
+                SECTION,
+                "fast replay end to end",
+                None,
+                "datagrams/s",
+                target=">= 1,000,000/s",
+                note=f"the fast path fell back: {info.reason}",
+            )
+        )
+        fast_rate = None
+    else:
+        log(f"replay: fast replay end to end x{repeats}")
+        t_fast, t_fast_all = median_of(lambda: timed(lambda: try_fast_replay(capture, track, opts)), repeats)
+        fast_rate = n_dg / t_fast
+    slow_repeats = 1  # minutes per run on the whole capture: one run, said in the table
+    log(f"replay: exact replay end to end x{slow_repeats} (slow)")
+    holder = {}
+
+    def run_exact():
+        holder["exact"] = replay_capture(capture, track, opts)
+
+    t_exact, t_exact_all = median_of(lambda: timed(run_exact), slow_repeats)
+    exact_rate = n_dg / t_exact
+    equal = None
+    if res is not None:
+        equal = _same_new_estimates(holder["exact"], res)
+    log(f"replay: naive per-message FilterPy x{slow_repeats} (slow)")
+    t_naive, t_naive_all = median_of(lambda: timed(lambda: _naive(capture, track, cfg_obj)), slow_repeats)
+    naive_rate = n_dg / t_naive
+    if fast_rate is not None:
+        rows.append(
+            Row(
+                SECTION,
+                f"fast replay end to end ({span})",
+                fast_rate,
+                "datagrams/s",
+                compared=f"exact replay {exact_rate:,.0f}/s ({fast_rate / exact_rate:.0f}x); "
+                f"new estimates identical to the exact replay: {equal}; "
+                f"{info.exact_prefix:,} datagrams through the exact prefix",
+                target=">= 1,000,000/s",
+                met=fast_rate >= 1e6,
+                repeats=repeats,
+                samples=tuple(n_dg / t for t in t_fast_all),
+                note="" if fast_rate >= 1e6 else _throughput_note(core_rate, c_rate, n_meas, n_dg),
+            )
+        )
+        ratio_naive = fast_rate / naive_rate
+        rows.append(
+            Row(
+                SECTION,
+                "fast replay / naive per-message FilterPy EKF",
+                ratio_naive,
+                "x",
+                compared=f"naive {naive_rate:,.0f} datagrams/s (dpkt + codec + FilterPy per message)",
+                target=">= 20x",
+                met=ratio_naive >= 20.0,
+                repeats=1,
+            )
+        )
+    rows.append(
+        Row(
+            SECTION,
+            "exact replay end to end (listener pipeline per datagram)",
+            exact_rate,
+            "datagrams/s",
+            compared=f"naive per-message FilterPy {naive_rate:,.0f}/s",
+            repeats=1,
+            samples=tuple(n_dg / t for t in t_exact_all),
+        )
+    )
+    rows.append(
+        Row(
+            SECTION,
+            "naive per-message FilterPy EKF end to end",
+            naive_rate,
+            "datagrams/s",
+            compared="the reference of the >= 20x target",
+            repeats=1,
+            samples=tuple(n_dg / t for t in t_naive_all),
+        )
+    )
+    track.close()
+    return rows
+
+
+def _listener_config(sc):
+    from listener.config import FilterSelection, ListenerConfig
+
+    return ListenerConfig(
+        filter=FilterSelection(imu=sc.imu.preset, odometer=sc.odometer.preset, gps=sc.gps.preset)
+    )
+
+
+def _same_new_estimates(a, b) -> bool:
+    ea, eb = a.new_estimates(), b.new_estimates()
+    for k in ea:
+        x, y = np.asarray(ea[k], dtype=float), np.asarray(eb[k], dtype=float)
+        if x.shape != y.shape or not np.array_equal(x, y, equal_nan=True):
+            return False
+    return True
+
+
+def _core_note() -> str:
+    return (
+        "the compiled kernels allocate small numpy arrays (H, R, y, K, I-KH) and use generic matrix "
+        "products for every 1- and 2-row update, where the C reference works on the stack with fixed-"
+        "size loops; preallocated work arrays and the Joseph update written out for 1 and 2 rows in "
+        "sfa/kernels.py would close most of the gap (owned by the filter developer)"
+    )
+
+
+def _throughput_note(core_rate: float, c_rate: float | None, n_meas: int, n_dg: int) -> str:
+    ceiling = core_rate * n_dg / n_meas
+    c_text = "" if c_rate is None else f"; the C reference of the same step runs {c_rate:,.0f} measurements/s"
+    return (
+        f"the filter step itself bounds the replay: the compiled core alone runs {core_rate:,.0f} "
+        f"measurements/s ({ceiling:,.0f} datagrams/s with decoding free){c_text}. Every IMU sample "
+        "runs a 9-state "
+        "prediction with a conditioned covariance and a gyro update in Joseph form (a few thousand "
+        "flops). Closing it needs a cheaper step, not a faster replay: a symmetric rank-1 covariance "
+        "update instead of Joseph form for scalar measurements, skipping the Cholesky check when the "
+        "diagonal floor was not touched, and predicting the covariance once per GNSS/odometer epoch "
+        "instead of per IMU sample (the filter's design, sfa/kernels.py)"
+    )
+
+
+def finite(x) -> bool:
+    return x is not None and math.isfinite(x)
