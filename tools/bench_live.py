@@ -214,9 +214,10 @@ class SoakRun:
                 t0 = time.monotonic()
                 while time.monotonic() - t0 < self.duration_s + 60.0:
                     rss = _rss_mib(lp.pid)
-                    if rss is None:
-                        self.error = "the listener exited during the soak"
-                        return
+                    if rss is None or lp.poll() is not None:
+                        if sp.poll() is None:
+                            self.error = "the listener exited during the soak"
+                        break  # the simulator's STOP at its end makes the listener exit: the soak is over
                     self.samples.append((time.monotonic() - t0, rss))
                     if sp.poll() is not None and time.monotonic() - t0 >= self.duration_s * 0.5:
                         break

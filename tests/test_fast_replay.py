@@ -1,0 +1,216 @@
+"""Fast replay (tools.fast_replay): equal to the exact replay on clean captures, falls back otherwise.
+
+The capture is a real simulator capture (``sfa sim regional-long --duration 60``: a single line, every
+measurement with its epoch, STROBEs and a STOP), replayed by both paths in the same test.
+"""
+
+from __future__ import annotations
+
+import math
+import struct
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+from helpers_capture import frame_ethernet, write_capture
+from hypothesis import given
+from hypothesis import strategies as st
+
+from interface_modules.scenario import load_scenario
+from interface_modules.tracks import database_path
+from listener.codec import INPUT_FORMS, DecodeError, decode_input, input_layout
+from listener.config import ListenerConfig, MergeConfig
+from tools.capture_reader import CaptureStats, read_capture
+from tools.fast_decode import decode_bytes
+from tools.fast_pcap import scan_capture
+from tools.fast_replay import try_fast_replay
+from tools.replay import ReplayOptions, replay_capture
+from track_db import TrackDatabase
+
+SECTIONS = ("input", "sequencing", "clock", "merge", "filter")
+
+
+@pytest.fixture(scope="module")
+def sim(tmp_path_factory):
+    d = tmp_path_factory.mktemp("fast")
+    subprocess.run(
+        [sys.executable, "-m", "sfa", "sim", "regional-long", "--duration", "60", "--out-dir", str(d)],
+        check=True,
+        capture_output=True,
+        timeout=300,
+    )
+    track = TrackDatabase.open(database_path(load_scenario("regional-long")))
+    stats = CaptureStats()
+    dgrams = [(g.time_s, g.src, g.payload) for g in read_capture(d / "capture.pcap", 48000, stats)]
+    yield {"dir": d, "cap": d / "capture.pcap", "track": track, "dgrams": dgrams}
+    track.close()
+
+
+def assert_same(exact, fast) -> None:
+    """New estimates, per-measurement updates, GNSS rows and counters identical, bit for bit."""
+    a, b = exact.new_estimates(), fast.new_estimates()
+    assert a.keys() == b.keys()
+    assert a["epoch"].size > 1000
+    for k in a:
+        assert a[k].dtype == b[k].dtype, k
+        np.testing.assert_array_equal(a[k], b[k], err_msg=k)  # NaN == NaN here, values bitwise
+    for k in exact.updates:
+        np.testing.assert_array_equal(exact.updates[k], fast.updates[k], err_msg=k)
+    for k in exact.gps:
+        np.testing.assert_array_equal(exact.gps[k], fast.gps[k], err_msg=k)
+    for sec in SECTIONS:
+        assert exact.metrics[sec] == fast.metrics[sec], sec
+    assert exact.metrics["link"]["outputs"] == fast.metrics["link"]["outputs"]  # new outputs sent
+    assert exact.capture == fast.capture
+    assert exact.datagrams == fast.datagrams
+
+
+def test_fast_equals_exact_on_a_clean_capture(sim):
+    opts = ReplayOptions()
+    exact = replay_capture(sim["cap"], sim["track"], opts)
+    fast, info = try_fast_replay(sim["cap"], sim["track"], opts)
+    assert info.used, info.reason
+    assert info.compiled > 3 * info.exact_prefix  # most of the capture ran compiled
+    assert fast is not None
+    assert_same(exact, fast)
+    assert np.all(fast.new_estimates()["retransmit"] == 0)
+    assert exact.metrics["input"]["stops"] == 1  # the run ends at the simulator's STOP
+
+
+def _bad_payloads() -> list[bytes]:
+    """One datagram per rejection reason the codec has (none touches the sequence buffers)."""
+    imu = struct.pack("<BHBB7d", 1, 7, 0, 7, 0.1, 0.0, -9.8, 0.0, 0.0, 0.0, 1.7e9)
+    return [
+        b"\x01\x00",  # short
+        imu[:-1],  # length
+        struct.pack("<BHBB", 42, 0, 0, 0),  # unknown type
+        struct.pack("<BHBB2d", 1, 7, 0, 2, 0.0, 0.0),  # form (IMU with 2 doubles)
+        struct.pack("<BHBB7d", 1, 7, 0, 7, math.nan, 0.0, -9.8, 0.0, 0.0, 0.0, 1.7e9),  # non-finite
+        struct.pack("<BHBB3d", 2, 7, 0, 3, 999.0, 0.1, 1.7e9),  # odometer speed out of range
+        struct.pack("<BHBB2i5d", 3, 7, 2, 5, 9, 8, 50.0, 11.0, 100.0, 2.0, 1.7e9),  # fix quality 9
+    ]
+
+
+def test_invalid_datagrams_are_counted_identically(sim, tmp_path):
+    dgrams = list(sim["dgrams"])
+    bad = _bad_payloads()
+    out = []
+    for i, (t, addr, p) in enumerate(dgrams):
+        out.append((t, addr, p))
+        if i in (100, 4000, 4500):  # one batch in the exact prefix, two in the compiled part
+            out += [(t + 1e-6 * (k + 1), ("127.0.0.1", 47999), b) for k, b in enumerate(bad)]
+    cap = tmp_path / "bad.pcap"
+    write_capture(
+        cap, out, extra=[(dgrams[50][0] + 1e-7, frame_ethernet(("127.0.0.1", 5353), 5353, b"mdns"))]
+    )
+    exact = replay_capture(cap, sim["track"], ReplayOptions())
+    fast, info = try_fast_replay(cap, sim["track"], ReplayOptions())
+    assert info.used, info.reason
+    assert info.exact_prefix < 4000
+    reasons = exact.metrics["input"]["rejected_by_reason"]
+    assert sum(reasons.values()) == 3 * len(bad)
+    assert len(reasons) >= 5
+    assert exact.capture["skipped"] == {"other_port": 1}
+    assert_same(exact, fast)
+
+
+def test_falls_back_when_the_capture_needs_the_sequence_buffer(sim, tmp_path):
+    dgrams = list(sim["dgrams"])
+    i = 5000
+    # swap two datagrams of the same sender: reordering, which the sequence buffer must repair
+    same = [k for k in range(i, i + 50) if dgrams[k][1] == dgrams[i][1]][:2]
+    a, b = same
+    dgrams[a], dgrams[b] = (
+        (dgrams[a][0], dgrams[b][1], dgrams[b][2]),
+        (dgrams[b][0], dgrams[a][1], dgrams[a][2]),
+    )
+    cap = tmp_path / "reordered.pcap"
+    write_capture(cap, dgrams)
+    result, info = try_fast_replay(cap, sim["track"], ReplayOptions())
+    assert result is None and not info.used
+    assert "reordering" in info.reason
+
+
+def test_falls_back_for_other_files_and_options(sim, tmp_path):
+    ng = tmp_path / "capture.pcapng"
+    write_capture(ng, sim["dgrams"][:200], pcapng=True)
+    result, info = try_fast_replay(ng, sim["track"], ReplayOptions())
+    assert result is None and "classic pcap" in info.reason
+    held = ReplayOptions(config=ListenerConfig(merge=MergeConfig(hold_s=0.1)))
+    result, info = try_fast_replay(sim["cap"], sim["track"], held)
+    assert result is None and "hold_s" in info.reason
+    result, info = try_fast_replay(sim["cap"], sim["track"], ReplayOptions(sensors=frozenset({"imu"})))
+    assert result is None and "sensor" in info.reason
+    odd = tmp_path / "not-ip.pcap"
+    write_capture(odd, sim["dgrams"][:20], extra=[(sim["dgrams"][5][0] + 1e-7, b"\x00" * 14)])
+    assert "Ethernet/IPv4" in scan_capture(odd, 48000)
+
+
+def test_scan_equals_the_dpkt_reader(sim):
+    scan = scan_capture(sim["cap"], 48000)
+    assert not isinstance(scan, str)
+    assert scan.time_s.size == len(sim["dgrams"])
+    for k in (0, 1, 777, len(sim["dgrams"]) - 1):
+        t, (host, port), payload = sim["dgrams"][k]
+        assert scan.time_s[k] == t  # same float operations as dpkt: bit-identical
+        assert int(scan.src_port[k]) == port
+        o = int(scan.offset[k])
+        assert bytes(scan.data[o : o + int(scan.length[k])]) == payload
+    assert scan.skipped_at.shape[0] == 0
+
+
+def _forms():
+    return st.sampled_from(INPUT_FORMS)
+
+
+_values = st.one_of(
+    st.floats(allow_nan=True, allow_infinity=True),
+    st.floats(min_value=-200.0, max_value=200.0),
+    st.sampled_from([0.0, -0.0, 1e10, 1e10 + 1.0, 90.0, 180.0, -1000.0, 150.0, 100000.0, 1.7e9]),
+)
+
+
+@given(form=_forms(), data=st.data(), cut=st.integers(min_value=-2, max_value=2))
+def test_compiled_decoder_agrees_with_the_codec(form, data, cut):
+    stype, n_int, n_double = form
+    names = input_layout(stype, n_int, n_double)
+    ints = [
+        data.draw(st.integers(min_value=-(2**31), max_value=2**31 - 1) | st.integers(0, 300))
+        for _ in range(n_int)
+    ]
+    dbls = [data.draw(_values) for _ in range(n_double)]
+    payload = struct.pack(
+        f"<BHBB{n_int}i{n_double}d",
+        int(stype),
+        data.draw(st.integers(0, 65535)),
+        n_int,
+        n_double,
+        *ints,
+        *dbls,
+    )
+    if cut < 0:
+        payload = payload[:cut]
+    elif cut > 0:
+        payload = payload + b"\x00" * cut
+    dec = decode_bytes([payload])
+    try:
+        msg = decode_input(payload)
+    except DecodeError:
+        assert not dec.ok[0]  # the compiled pass never accepts what the codec rejects
+        return
+    assert dec.ok[0]  # ... nor rejects what it accepts
+    assert int(dec.stype[0]) == int(stype) and int(dec.seq[0]) == msg.seq
+    for j, name in enumerate(names):
+        assert dec.values[0, j] == float(getattr(msg, name)), name
+
+
+@given(st.binary(max_size=80))
+def test_compiled_decoder_on_arbitrary_bytes(payload):
+    dec = decode_bytes([payload])
+    try:
+        decode_input(payload)
+        accepted = True
+    except DecodeError:
+        accepted = False
+    assert bool(dec.ok[0]) == accepted
