@@ -233,3 +233,15 @@ def test_profile_file_and_table(tmp_path):
     (tmp_path / "bad.toml").write_text("loss = [")
     with pytest.raises(FaultConfigError, match="not valid TOML"):
         load_profile(tmp_path / "bad.toml")
+
+
+def test_injection_timers_advance_at_large_absolute_times():
+    """At t ~ 1.7e9 s a float step is ~2e-7 s: the flood's timer must still move on every call."""
+    core = FaultCore(Impairments(garbage_rate_hz=1000.0, forge_rate_hz=100.0, inject_end_s=2.0), seed=1,
+                     start=1.7e9)
+    calls = 0
+    while (t := core.next_timer()) is not None and calls < 10_000:
+        core.handle_timer(t)
+        calls += 1
+    assert core.next_timer() is None
+    assert core.stats()["garbage"] == 2000 and core.stats()["forged_invalid"] == 200

@@ -258,11 +258,11 @@ class FaultCore:
         if self._next_garbage is not None and self._next_garbage <= now and budget > 0:
             # the k-th garbage datagram is due at start + inject_start + k / rate: all due ones at once
             t0 = self.start + imp.inject_start_s
-            last_due = math.floor((min(now, end) - t0) * imp.garbage_rate_hz + 1e-9)
-            if (end - t0) * imp.garbage_rate_hz == last_due:  # the window is half-open
-                last_due -= 1
-            k = max(0, min(last_due + 1 - self._garbage, budget))
-            times = t0 + (self._garbage + np.arange(k)) / imp.garbage_rate_hz
+            # candidates computed exactly as _next_garbage is (no rounding can stall the timer)
+            n = max(1, min(budget, math.ceil((now - t0) * imp.garbage_rate_hz) + 2 - self._garbage))
+            times = t0 + (self._garbage + np.arange(n)) / imp.garbage_rate_hz
+            k = int(np.count_nonzero((times <= now) & (times < end)))  # a prefix: times increase
+            times = times[:k]
             self._garbage += k
             nxt = t0 + self._garbage / imp.garbage_rate_hz
             self._next_garbage = nxt if nxt < end else None
