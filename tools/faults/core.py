@@ -244,7 +244,7 @@ class FaultCore:
                 break
             budget -= 1
             self._forged += 1
-            self._next_forge = t + 1.0 / imp.forge_rate_hz
+            self._next_forge = self.start + imp.inject_start_s + self._forged / imp.forge_rate_hz
             if self.in_blackout(t):
                 continue
             rng = self._inj_rng
