@@ -50,7 +50,7 @@ class Observation:
     input_proxy: dict[str, int]
     output_proxy: dict[str, int]
     input_blackouts: tuple[tuple[float, float], ...]
-    output_blackouts: tuple[tuple[float, float], ...]
+    output_blackouts: tuple[tuple[float, float], ...]  #: OBCU-link outages (blackout, silent OBCU, no acks)
     sensor_fault_windows: list[tuple[float, float]]  #: (start_s, end_s) from the scenario start
     crashes: int
     crash_detail: str = ""

@@ -152,7 +152,7 @@ def run_live(spec: ScenarioSpec, out: Path) -> Observation:
     from interface_modules.offline import generate
     from interface_modules.tracks import database_path
     from tools.faults.netns import Namespace
-    from tools.faults.runner import build_scenario, fault_windows, listener_config
+    from tools.faults.runner import build_scenario, fault_windows, listener_config, output_outages
 
     if spec.auth:
         raise ModeUnsupported("authenticated links are not wired into `sfa listen` yet: replay path only")
@@ -303,7 +303,7 @@ def run_live(spec: ScenarioSpec, out: Path) -> Observation:
         fresh_age=age, fresh_reasons=None, metrics=metrics, link_transitions=transitions,
         input_proxy=proxies["proxy_in"], output_proxy=proxies["proxy_out"],
         input_blackouts=spec.input_link.blackouts if spec.input_link else (),
-        output_blackouts=spec.output_link.blackouts if spec.output_link else (),
+        output_blackouts=output_outages(spec),
         sensor_fault_windows=fault_windows(sc, sim), crashes=crashes,
         memory_growth_mb=growth, latency_p99_ms=float(np.percentile(age, 99) * 1000.0) if age.size else None,
         reasons_seen=reasons, notes=notes,

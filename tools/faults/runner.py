@@ -59,6 +59,11 @@ def fault_windows(sc, sim) -> list[tuple[float, float]]:
     return out
 
 
+def output_outages(spec: ScenarioSpec) -> tuple[tuple[float, float], ...]:
+    """Windows in which the OBCU link is cut: output-link blackouts, a silent OBCU, withheld acks."""
+    return (spec.output_link.blackouts if spec.output_link else ()) + spec.obcu.silent + spec.obcu.drop_acks
+
+
 def run_replay(spec: ScenarioSpec, out_dir: Path) -> Observation:
     """The replay path: offline datagrams through the whole system on scripted time."""
     from interface_modules.offline import generate
@@ -103,7 +108,7 @@ def run_replay(spec: ScenarioSpec, out_dir: Path) -> Observation:
         metrics=trace.metrics, link_transitions=trace.link_transitions,
         input_proxy=trace.input_proxy, output_proxy=trace.output_proxy,
         input_blackouts=spec.input_link.blackouts if spec.input_link else (),
-        output_blackouts=spec.output_link.blackouts if spec.output_link else (),
+        output_blackouts=output_outages(spec),
         sensor_fault_windows=fault_windows(sc, sim),
         crashes=1 if trace.crash else 0, crash_detail=trace.crash, wall_s=trace.wall_s,
         corruption=bool(spec.input_link and (spec.input_link.bitflip > 0 or spec.input_link.forge_on_stream)),
