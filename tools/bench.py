@@ -47,6 +47,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--seeds", type=int, default=None, help="accuracy: seeds per scenario (default 3; 1 quick)"
     )
     parser.add_argument(
+        "--scenario", action="append", help="accuracy: only this shipped scenario (repeatable; default all)"
+    )
+    parser.add_argument(
         "--soak-s", type=float, default=None, help="memory soak length [s] (default 600; 45 quick)"
     )
 
@@ -91,7 +94,9 @@ def run(args: argparse.Namespace) -> int:
         if "accuracy" in only:
             from tools.bench_accuracy import accuracy_rows
 
-            rows += accuracy_rows(quick, seeds, max_duration_s=120.0 if quick else None, log=log)
+            rows += accuracy_rows(
+                quick, seeds, max_duration_s=120.0 if quick else None, names=args.scenario, log=log
+            )
         if "replay" in only:
             from tools.bench_replay import replay_rows
 

@@ -24,7 +24,12 @@ BASELINES = {"odo-dr": "odometer only", "gnss-proj": "raw GPS projection", "plai
 
 
 def accuracy_rows(
-    quick: bool, seeds: int, step_s: float = 0.5, max_duration_s: float | None = None, log=print
+    quick: bool,
+    seeds: int,
+    step_s: float = 0.5,
+    max_duration_s: float | None = None,
+    names: list[str] | None = None,
+    log=print,
 ) -> list[Row]:
     from interface_modules.offline import generate
     from interface_modules.scenario import load_scenario, scenario_names
@@ -36,7 +41,12 @@ def accuracy_rows(
 
     acc = load_benchmark_module("bench_filter_accuracy")
     rows: list[Row] = []
-    for name in scenario_names():
+    known = scenario_names()
+    for name in names or known:
+        if name not in known:
+            from tools.errors import ToolError
+
+            raise ToolError(f"unknown scenario {name!r} (shipped: {', '.join(known)})")
         sc = load_scenario(name)
         db_path = database_path(sc)
         if db_path is None:
