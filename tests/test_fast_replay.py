@@ -214,3 +214,14 @@ def test_compiled_decoder_on_arbitrary_bytes(payload):
     except DecodeError:
         accepted = False
     assert bool(dec.ok[0]) == accepted
+
+
+def test_bad_files_fall_back_with_a_reason(sim, tmp_path):
+    raw = sim["cap"].read_bytes()
+    cut = tmp_path / "cut.pcap"
+    cut.write_bytes(raw[: len(raw) // 2 + 7])  # tcpdump killed mid-record
+    result, info = try_fast_replay(cut, sim["track"], ReplayOptions())
+    assert result is None and "truncated" in info.reason
+    for path, words in ((tmp_path, "cannot map"), (tmp_path / "missing.pcap", "cannot stat")):
+        result, info = try_fast_replay(path, sim["track"], ReplayOptions())
+        assert result is None and words in info.reason

@@ -166,7 +166,10 @@ def scan_capture(path: str | Path, port: int) -> ScannedCapture | str:
         return f"cannot stat: {exc.strerror or exc}"
     if size < GLOBAL_HEADER_BYTES:
         return "not a classic pcap"
-    data = np.memmap(p, dtype=np.uint8, mode="r")
+    try:
+        data = np.memmap(p, dtype=np.uint8, mode="r")
+    except (OSError, ValueError) as exc:
+        return f"cannot map: {exc}"
     magic = int(data[0]) | int(data[1]) << 8 | int(data[2]) << 16 | int(data[3]) << 24
     if magic != PCAP_MAGIC_US_LE:
         return "not a little-endian microsecond classic pcap (pcapng, nanosecond or big-endian)"

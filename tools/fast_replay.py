@@ -255,15 +255,18 @@ def _replay_scanned(scan, track, options):
     from tools.fast_pack import pack_rows
 
     filt = pipe.filter
-    hyp = filt._hyps[filt._reported]  # the single hypothesis (ready() checked there is one)
-    line = hyp.line
+    try:  # the state arrays of the single hypothesis (ready() checked there is one)
+        hyp = filt._hyps[filt._reported]
+        line = hyp.line
+        x, P, aux, cnt, mem = hyp.x, hyp.P, hyp.aux, hyp.cnt, hyp.mem  # advanced in place
+    except (AttributeError, IndexError):
+        return None, _info(False, "the filter does not expose its hypothesis arrays", h)
     mrows = rows[meas]
     kind, t_s, vals = pack_rows(dec, mrows, track)
     nm = mrows.size
 
     from tools.fast_loop import interp_many, run_replay_loop
 
-    x, P, aux, cnt, mem = hyp.x, hyp.P, hyp.aux, hyp.cnt, hyp.mem  # advanced in place
     cfg = filt.config.to_array()
     last = pipe.last_estimate
     last_epoch = -math.inf if last is None else float(last.epoch_s)
@@ -292,7 +295,7 @@ def _replay_scanned(scan, track, options):
     )
 
     # 4. refuse after the fact near junctions of this line (the exact filter would branch there)
-    why = _junction_reason(filt, line, out_f[:, 1], hyp)
+    why = _junction_reason(filt, line, out_f[:, 1])
     if why:
         return None, _info(False, why, h)
 
@@ -455,8 +458,11 @@ def _check_sequences(key_all, dec, h, n, options) -> str:
     return ""
 
 
-def _junction_reason(filt, line, s_m: np.ndarray, hyp) -> str:
-    jmap = filt._junction_map()
+def _junction_reason(filt, line, s_m: np.ndarray) -> str:
+    try:
+        jmap = filt._junction_map()
+    except AttributeError:
+        return "the filter does not expose its junction map"
     entry = jmap.get(line.line_id)
     if entry is None or s_m.size == 0:
         return ""
