@@ -82,6 +82,7 @@ def to_markdown(rows: list[Row], env: dict) -> str:
         "",
         f"Versions: {env.get('versions_text', '')}.",
         "",
+        *([f"Concurrency: {env['concurrency']}.", ""] if env.get("concurrency") else []),
         "| section | figure | value (median) | compared in the same run | target | status |",
         "|---|---|---|---|---|---|",
     ]
