@@ -101,6 +101,8 @@ def main(argv=None) -> int:
     ap.add_argument("--scenario", action="append", help="scenario name or path (default: all shipped)")
     ap.add_argument("--step", type=float, default=0.5, help="error sampling step [s]")
     ap.add_argument("--no-baselines", action="store_true")
+    ap.add_argument("--set", action="append", default=[], metavar="FIELD=VALUE",
+                    help="override a FilterConfig field (number or true/false)")
     args = ap.parse_args(argv)
 
     from scipy.stats import chi2
@@ -112,11 +114,18 @@ def main(argv=None) -> int:
     from sfa.presets import filter_config_for
     from track_db import TrackDatabase
 
+    overrides: dict[str, object] = {}
+    for item in args.set:
+        key, _, value = item.partition("=")
+        low = value.strip().lower()
+        overrides[key.strip()] = (low == "true") if low in ("true", "false") else (
+            int(value) if value.strip().lstrip("-").isdigit() else float(value))
     names = args.scenario or scenario_names()
     if not names:
         print("no scenarios found", file=sys.stderr)
         return 2
-    print(f"# SFA accuracy benchmark: {args.seeds} seeds per scenario, error sampled every {args.step} s")
+    print(f"# SFA accuracy benchmark: {args.seeds} seeds per scenario, error sampled every {args.step} s"
+          + (f"; overrides {overrides}" if overrides else ""))
     for name in names:
         sc = load_scenario(name)
         db_path = database_path(sc)
@@ -124,7 +133,7 @@ def main(argv=None) -> int:
             print(f"\n## {name}: synthetic track without a database, skipped (needs a TrackDatabase)")
             continue
         track = TrackDatabase.open(db_path)
-        cfg = filter_config_for(sc.imu.preset, sc.odometer.preset, sc.gps.preset)
+        cfg = filter_config_for(sc.imu.preset, sc.odometer.preset, sc.gps.preset, **overrides)
         errs = {k: [] for k in ("sfa", "plain-ekf", "odo-dr", "gnss-proj")}
         cover, nees_rows, outage_err, wrong_line = [], [], [], 0
         n_samples = 0
