@@ -249,3 +249,38 @@ def test_bad_truth_files(tmp_path):
         p.write_text(text)
         with pytest.raises(ToolError, match=needle):
             read_truth_csv(p)
+
+
+def test_fast_flag_gives_the_same_estimates_or_says_why(world, tmp_path):
+    outs = {}
+    for flag in ("", "--fast"):
+        out = tmp_path / f"o{flag}"
+        res = subprocess.run(
+            [
+                sys.executable,
+                "-m",
+                "sfa",
+                "replay",
+                str(world["cap"]),
+                "--track",
+                str(world["track_path"]),
+                "--out",
+                str(out),
+                "--quiet",
+                "--no-report",
+                "--no-baselines",
+                *([flag] if flag else []),
+            ],
+            check=True,
+            capture_output=True,
+            text=True,
+            timeout=300,
+        )
+        outs[flag] = (out, res)
+    assert (outs[""][0] / "estimates.csv").read_bytes() == (outs["--fast"][0] / "estimates.csv").read_bytes()
+    fast_out, fast_res = outs["--fast"]
+    path = json.loads((fast_out / "metrics.json").read_text())["replay_path"]
+    assert path in ("fast", "exact")
+    if path == "exact":
+        assert "fast path not used (" in fast_res.stderr
+    assert f"replay ({path})" in fast_res.stdout

@@ -35,6 +35,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument("--no-baselines", action="store_true", help="skip the baseline estimators")
     parser.add_argument("--no-report", action="store_true", help="skip figures and report.html")
+    parser.add_argument(
+        "--fast",
+        action="store_true",
+        help="compiled replay when the capture allows it (same estimates; otherwise the exact replay "
+        "runs and the reason is printed)",
+    )
     parser.add_argument("--quiet", action="store_true", help="no progress bar")
 
 
@@ -75,12 +81,24 @@ def run(args: argparse.Namespace) -> int:
     options = ReplayOptions(port=port, config=cfg)
 
     t0 = time.perf_counter()
-    result = replay_capture(
-        args.capture, track, options, show_progress=not args.quiet and sys.stderr.isatty()
-    )
+    result = None
+    path_used = "exact"
+    if args.fast:
+        from tools.fast_replay import try_fast_replay
+
+        result, info = try_fast_replay(args.capture, track, options)
+        if result is None:
+            print(f"replay: fast path not used ({info.reason}); running the exact replay", file=sys.stderr)
+        else:
+            path_used = "fast"
+    if result is None:
+        result = replay_capture(
+            args.capture, track, options, show_progress=not args.quiet and sys.stderr.isatty()
+        )
     wall = time.perf_counter() - t0
     metrics = replay_metrics(result, truth)
     metrics["replay_wall_s"] = wall
+    metrics["replay_path"] = path_used
     metrics["datagrams_per_s"] = result.datagrams / wall if wall > 0 else None
 
     comparison = None
@@ -118,7 +136,8 @@ def run(args: argparse.Namespace) -> int:
             f"max {metrics['max_m']:.3f} m"
         )
     print(
-        f"replay: {result.datagrams} datagrams, {metrics['new_estimates']} estimates in {wall:.2f} s "
+        f"replay ({path_used}): {result.datagrams} datagrams, {metrics['new_estimates']} estimates "
+        f"in {wall:.2f} s "
         f"({metrics['datagrams_per_s']:.0f} datagrams/s){acc} -> {out}"
     )
     return 0
