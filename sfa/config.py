@@ -30,7 +30,8 @@ class FilterConfig:
     max_predict_dt_s: float = 0.1  #: longest single prediction step [s]
     # --- gyro (optional update gz = v * curvature(s) + b_g)
     use_gyro: bool = True  #: apply the gyro update gz = v curvature(s) + b_g (see docs/filter.md)
-    gyro_sigma_radps: float = 0.02  #: gyro white noise per sample incl. curvature model error [rad/s]
+    gyro_sigma_radps: float = 0.005  #: gyro white noise and scale error per sample [rad/s]
+    curvature_sigma_inv_m: float = 1.5e-3  #: curvature-model error of the database [1/m] (R += (v sigma)^2)
     gyro_bias_rw_radps_rts: float = 2.0e-5  #: gyro bias random walk [rad/s/sqrt(s)]
     init_sigma_gyro_bias_radps: float = 0.0175  #: initial gyro bias sigma [rad/s]
     gyro_min_speed_mps: float = 2.0  #: smallest speed for the gyro update [m/s]
@@ -191,4 +192,5 @@ class FilterConfig:
         c[L.K_SNAP_PERIOD] = self.snapshot_period_s if self.slip_rewind else -1.0
         c[L.K_INIT_SIGMA_MY] = self.init_sigma_yaw_misalignment_rad
         c[L.K_INIT_SIGMA_SF] = self.init_sigma_accel_scale
+        c[L.K_CURV_SIGMA] = self.curvature_sigma_inv_m
         return c

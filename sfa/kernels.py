@@ -89,6 +89,7 @@ from sfa.layout import (
     C_ZUPT,
     GE,
     GN,
+    K_CURV_SIGMA,
     K_CUSUM_H,
     K_CUSUM_K,
     K_DEGRADED_SIGMA,
@@ -664,7 +665,7 @@ def step_imu(x, P, aux, cnt, mem, cfg, ts, tg, tk, t, fx, fy, fz, wx, wy, wz):
         H[0, S] = x[V] * slope_at(ts, tk, x[S])  # d(v k(s))/ds
         H[0, V] = k
         H[0, BG] = 1.0
-        R[0, 0] = cfg[K_GYRO_SIGMA] ** 2
+        R[0, 0] = cfg[K_GYRO_SIGMA] ** 2 + (x[V] * cfg[K_CURV_SIGMA]) ** 2  # sensor + v * curvature error
         y[0] = wz - (x[V] * k + x[BG])  # y = gz - (v k(s) + b_g)
         PHt, Sm, Si, nis, logdet = innovation(P, H, R, y, 1)
         aux[A_LAST_NIS_GYRO] = nis

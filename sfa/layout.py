@@ -177,7 +177,8 @@ K_GPS_MAX_LOGLIK_NIS = 48  #: NIS cap when scoring hypotheses (robust likelihood
 K_SNAP_PERIOD = 49  #: period of the rewind snapshots [s]
 K_INIT_SIGMA_MY = 50  #: [rad]
 K_INIT_SIGMA_SF = 51  #: [-]
-NCFG = 52
+K_CURV_SIGMA = 52  #: curvature-model error of the database [1/m]
+NCFG = 53
 
 # ---------------------------------------------------------------- measurement kinds and result codes
 M_IMU = 1

@@ -11,10 +11,10 @@ import math
 from sfa.config import FilterConfig
 from sfa.errors import FilterConfigError
 
-#: yaw-rate error of the database curvature model, for simulated data whose yaw rate follows the
-#: database's own smoothed curvature [rad/s]. Real tracks digitised from maps need more (the
-#: FilterConfig default, 0.02 rad/s).
-CURVATURE_MODEL_RADPS = 0.0035
+#: curvature-model error for simulated data whose yaw rate follows the database's own smoothed
+#: curvature (what remains is the filter's 4 m linear resampling of it) [1/m]. Tracks digitised from
+#: maps need more: the FilterConfig default is 1.5e-3 1/m.
+CURVATURE_MODEL_INV_M = 2.5e-4
 
 
 def filter_config_for(
@@ -51,10 +51,11 @@ def filter_config_for(
         init_sigma_yaw_misalignment_rad=imu_spec.misalignment_sigma,
         init_sigma_accel_scale=imu_spec.accel_scale_sigma,
         gyro_bias_rw_radps_rts=imu_spec.gyro_bias_rw,
-        # gyro white noise per sample, scale error on a ~0.3 rad/s tram yaw rate, and 3.5 mrad/s for the
-        # database curvature model (its smoothing and the filter's 4 m linear resampling of it)
-        gyro_sigma_radps=math.sqrt((imu_spec.gyro_noise_density * math.sqrt(imu_spec.rate_hz)) ** 2
-                                   + (imu_spec.gyro_scale_sigma * 0.3) ** 2 + CURVATURE_MODEL_RADPS ** 2),
+        # gyro white noise per sample and scale error on a ~0.3 rad/s yaw rate; the curvature model
+        # error enters as (v * CURVATURE_MODEL_INV_M)^2
+        gyro_sigma_radps=math.hypot(imu_spec.gyro_noise_density * math.sqrt(imu_spec.rate_hz),
+                                    imu_spec.gyro_scale_sigma * 0.3),
+        curvature_sigma_inv_m=CURVATURE_MODEL_INV_M,
         init_sigma_gyro_bias_radps=imu_spec.gyro_bias_sigma,
         init_sigma_odo_scale=odo_spec.scale_sigma,
         odo_quant_mps=odo_spec.lsb_mps,

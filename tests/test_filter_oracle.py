@@ -104,7 +104,7 @@ class Oracle:
             dk = (self.curv[i + 1] - self.curv[i]) / (self.curv_s[i + 1] - self.curv_s[i])
             H = np.zeros((1, NX))
             H[0, 0], H[0, 1], H[0, 6] = x[1, 0] * dk, k, 1.0
-            R = np.array([[self.cfg.gyro_sigma_radps ** 2]])
+            R = np.array([[self.cfg.gyro_sigma_radps ** 2 + (x[1, 0] * self.cfg.curvature_sigma_inv_m) ** 2]])
             y = m.w_radps[2] - (x[1, 0] * k + x[6, 0])
             nis = y * y / (H @ self.ekf.P @ H.T + R)[0, 0]
             if nis <= self.gate_gyro:
