@@ -152,7 +152,7 @@ def run_live(spec: ScenarioSpec, out: Path) -> Observation:
     from interface_modules.offline import generate
     from interface_modules.tracks import database_path
     from tools.faults.netns import Namespace
-    from tools.faults.runner import build_scenario, fault_windows, listener_config, output_outages
+    from tools.faults.runner import build_scenario, fault_windows, listener_config
 
     if spec.auth:
         raise ModeUnsupported("authenticated links are not wired into `sfa listen` yet: replay path only")
@@ -215,6 +215,7 @@ def run_live(spec: ScenarioSpec, out: Path) -> Observation:
                                   *_windows_args("--silent", spec.obcu.silent),
                                   *[a for t in spec.obcu.restart_at_s for a in ("--restart-at", str(t))]))
         wait_ready("obcu", obcu, 60.0)
+        t_obcu = time.monotonic()  # the OBCU's clock (CSV time_s, misbehaviour windows) starts about here
         target = f"{listen_host}:{listen_port}"
         if spec.input_link is not None and ns is None:  # in a namespace, netem impairs the input link
             p = start("proxy_in", _sfa("faults", "proxy", "--listen", f"{host}:{in_proxy_port}", "--forward",
@@ -279,6 +280,14 @@ def run_live(spec: ScenarioSpec, out: Path) -> Observation:
     est = read_obcu_csv(out / "obcu.csv")
     mask = fresh_mask(est["seq"])
     t_arr, epoch = est["time_s"][mask], est["epoch"][mask]
+    # one time axis, seconds from the simulator's start: the OBCU's clock started obcu_offset earlier;
+    # the output proxy's windows count from its first datagram (the first output), the input proxy's
+    # from the first sensor datagram (the simulator's start)
+    obcu_offset = t_start - t_obcu
+    arrival = t_arr - obcu_offset
+    first_out = float(arrival[0]) if arrival.size else 0.0
+    outages = tuple((a + first_out, d) for a, d in (spec.output_link.blackouts if spec.output_link else ()))
+    outages += tuple((a - obcu_offset, d) for a, d in spec.obcu.silent + spec.obcu.drop_acks)
     if t_arr.size:
         lag = t_arr - (epoch - epoch[0]) / spec.speed  # wall seconds, up to a constant
         age = lag - lag.min()
@@ -298,12 +307,12 @@ def run_live(spec: ScenarioSpec, out: Path) -> Observation:
         truth_epoch=np.asarray(sim.truth["epoch"], float),
         truth_arc=np.asarray(sim.truth["arc_length"], float),
         start_epoch_s=sc.start_epoch_s,
-        fresh_arrival=t_arr - (t_arr[0] if t_arr.size else 0.0), fresh_epoch=epoch,
+        fresh_arrival=arrival, fresh_epoch=epoch,
         fresh_arc=est["arc_length"][mask], fresh_lo=est["lo"][mask], fresh_hi=est["hi"][mask],
         fresh_age=age, fresh_reasons=None, metrics=metrics, link_transitions=transitions,
         input_proxy=proxies["proxy_in"], output_proxy=proxies["proxy_out"],
         input_blackouts=spec.input_link.blackouts if spec.input_link else (),
-        output_blackouts=output_outages(spec),
+        output_blackouts=outages,
         sensor_fault_windows=fault_windows(sc, sim), crashes=crashes,
         memory_growth_mb=growth, latency_p99_ms=float(np.percentile(age, 99) * 1000.0) if age.size else None,
         reasons_seen=reasons, notes=notes,
