@@ -233,3 +233,16 @@ def test_bench_quick_writes_a_complete_table(tmp_path):
     text = doc.read_text()
     assert text.startswith("# Performance\n") and DOC_BEGIN in text and DOC_END in text
     assert "| section | figure | value (median)" in proc.stdout or "sfa bench (quick)" in proc.stdout
+
+
+def test_new_rows_tells_retransmissions_by_content_across_a_seq_wrap():
+    from types import SimpleNamespace
+
+    from tools.bench_replay import new_rows
+
+    seq = np.array([65534, 65535, 65535, 0, 1, 65534, 65534], dtype=np.int64)
+    epoch = np.array([1.0, 2.0, 2.0, 3.0, 4.0, 5.0, 5.0])
+    arc = np.array([10.0, 11.0, 11.0, 12.0, 13.0, 14.0, 14.0])
+    res = SimpleNamespace(estimates={"seq": seq, "epoch": epoch, "arc_length": arc})
+    # row 2 resends row 1; row 5 reuses SEQ 65534 after the wrap with a new estimate; row 6 resends it
+    np.testing.assert_array_equal(new_rows(res), [True, True, False, True, True, True, False])
