@@ -76,6 +76,12 @@ def run(args: argparse.Namespace) -> int:
         out_dir.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
         raise ToolError(f"--out {out_dir}: {exc.strerror or exc}") from exc
+    if args.scenario:
+        from interface_modules.scenario import scenario_names
+
+        unknown = sorted(set(args.scenario) - set(scenario_names()))
+        if unknown:
+            raise ToolError(f"unknown scenario {', '.join(unknown)} (shipped: {', '.join(scenario_names())})")
     env = environment(repo_root(), "quick" if quick else "full")
 
     def log(msg: str) -> None:
@@ -91,20 +97,25 @@ def run(args: argparse.Namespace) -> int:
             (tmp / "soak").mkdir()
             soak = SoakRun(tmp / "soak", soak_s).start()
             log(f"memory: {soak_s:g} s soak started in the background (sfa listen + sfa sim --live)")
-        if "accuracy" in only:
-            from tools.bench_accuracy import accuracy_rows
+        try:
+            if "accuracy" in only:
+                from tools.bench_accuracy import accuracy_rows
 
-            rows += accuracy_rows(
-                quick, seeds, max_duration_s=120.0 if quick else None, names=args.scenario, log=log
-            )
-        if "replay" in only:
-            from tools.bench_replay import replay_rows
+                rows += accuracy_rows(
+                    quick, seeds, max_duration_s=120.0 if quick else None, names=args.scenario, log=log
+                )
+            if "replay" in only:
+                from tools.bench_replay import replay_rows
 
-            rows += replay_rows(tmp, quick, repeats, quick_s=120.0, log=log)
-        if "track" in only:
-            from tools.bench_queries import query_rows
+                rows += replay_rows(tmp, quick, repeats, quick_s=120.0, log=log)
+            if "track" in only:
+                from tools.bench_queries import query_rows
 
-            rows += query_rows(20_000 if quick else 200_000, repeats, log=log)
+                rows += query_rows(20_000 if quick else 200_000, repeats, log=log)
+        except BaseException:
+            if soak is not None:
+                soak.abort()  # no orphaned listener/simulator processes on an error or Ctrl-C
+            raise
         if soak is not None:
             rows.append(soak.join(log=log))
         if "listener" in only:

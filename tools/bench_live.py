@@ -113,11 +113,17 @@ class SoakRun:
         self.sample_s = sample_s
         self.samples: list[tuple[float, float]] = []  # (seconds since start, RSS MiB)
         self.error = ""
+        self._abort = threading.Event()
         self._thread = threading.Thread(target=self._run, daemon=True)
 
     def start(self) -> SoakRun:
         self._thread.start()
         return self
+
+    def abort(self) -> None:
+        """Stop the soak now (its processes are terminated by the soak thread)."""
+        self._abort.set()
+        self._thread.join(timeout=60.0)
 
     def join(self, log=print) -> Row:
         log(f"memory: waiting for the {self.duration_s:g} s soak to finish")
@@ -188,7 +194,7 @@ class SoakRun:
                 procs.append(lp)
                 deadline = time.monotonic() + 180.0
                 while '"event":"ready"' not in log_path.read_text():
-                    if lp.poll() is not None or time.monotonic() > deadline:
+                    if lp.poll() is not None or time.monotonic() > deadline or self._abort.is_set():
                         self.error = f"listener did not start: {log_path.read_text()[-300:]}"
                         return
                     time.sleep(0.1)
@@ -221,7 +227,9 @@ class SoakRun:
                     self.samples.append((time.monotonic() - t0, rss))
                     if sp.poll() is not None and time.monotonic() - t0 >= self.duration_s * 0.5:
                         break
-                    time.sleep(self.sample_s)
+                    if self._abort.wait(self.sample_s):
+                        self.error = "aborted"
+                        break
         except OSError as exc:
             self.error = f"soak failed: {exc}"
         finally:
