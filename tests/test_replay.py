@@ -284,3 +284,13 @@ def test_fast_flag_gives_the_same_estimates_or_says_why(world, tmp_path):
     if path == "exact":
         assert "fast path not used (" in fast_res.stderr
     assert f"replay ({path})" in fast_res.stdout
+
+
+def test_outputs_after_a_seq_wrap_are_not_taken_for_retransmissions(world):
+    from listener.config import LinkConfig, ListenerConfig
+
+    opts = ReplayOptions(config=ListenerConfig(link=LinkConfig(start_seq=65000)))
+    r = replay_capture(world["cap"], world["track"], opts)
+    seqs = r.estimates["seq"]
+    assert 0 in seqs and 65535 in seqs  # crossed the wrap
+    assert int(r.estimates["retransmit"].sum()) == r.metrics["link"]["retransmits"]

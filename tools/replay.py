@@ -13,6 +13,7 @@ plots), the GNSS fixes seen, and every pipeline counter.
 from __future__ import annotations
 
 import math
+from collections import deque
 from collections.abc import Iterable
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -112,7 +113,8 @@ def replay_datagrams(
     upd_outcome: list[int] = []
     upd_nis: list[float] = []
     gps_rows: list[tuple[float, float, float, int]] = []
-    by_seq: dict[int, Any] = {}
+    by_seq: dict[int, Any] = {}  # SEQ -> the estimate last encoded with it
+    fresh: deque[int] = deque()  # SEQs encoded as new estimates and not yet seen in an output
 
     def on_update(upd) -> None:
         upd_t.append(upd.t_s)
@@ -120,19 +122,26 @@ def replay_datagrams(
         upd_outcome.append(int(upd.outcome))
         upd_nis.append(math.nan if upd.nis is None else float(upd.nis))
 
-    pipe.on_output = by_seq.__setitem__
+    def on_output(seq: int, est) -> None:
+        by_seq[seq] = est
+        fresh.append(seq)
+
+    pipe.on_output = on_output
     pipe.on_update = on_update
     measurements: list = []
     if options.record_measurements:
         pipe.on_measurement = measurements.append
-    seen_new: set[int] = set()
 
     def record(outputs: list[bytes], now: float) -> None:
         for payload in outputs:
             msg = decode_output(payload[:18])
             est = by_seq.get(msg.seq)
-            retransmit = 1 if msg.seq in seen_new else 0
-            seen_new.add(msg.seq)
+            # a new estimate's datagram follows its encoding; anything else is a resend of the newest
+            if fresh and fresh[0] == msg.seq:
+                fresh.popleft()
+                retransmit = 0
+            else:
+                retransmit = 1
             if est is None:  # pragma: no cover - every output passes through the encoder
                 raise ToolError(f"output SEQ {msg.seq} was not recorded")
             est_rows.append(
@@ -152,8 +161,6 @@ def replay_datagrams(
                     est.lon_deg,
                 )
             )
-        if len(seen_new) > 70000:  # SEQ wraps: forget what is far behind (bounded memory)
-            seen_new.clear()
 
     n = 0
     skipped = 0
