@@ -13,9 +13,12 @@ stderr and a non-zero exit status here, at the boundary, and nowhere else.
 from __future__ import annotations
 
 import argparse
+import hashlib
 import importlib
+import os
 import sys
 from collections.abc import Sequence
+from pathlib import Path
 
 #: subcommand -> (module implementing it, one-line help)
 COMMANDS: dict[str, tuple[str, str]] = {
@@ -38,6 +41,43 @@ ERROR_MODULES = (
     "track_db.errors",
     "tools.errors",
 )
+
+
+PACKAGES = ("sfa", "listener", "interface_modules", "track_db", "tools")
+
+
+def source_fingerprint() -> str:
+    """A short hash of every project source file's path, size and modification time."""
+    root = Path(__file__).resolve().parent.parent
+    h = hashlib.sha256()
+    for pkg in PACKAGES:
+        for path in sorted((root / pkg).rglob("*.py")):
+            st = path.stat()
+            h.update(f"{path.relative_to(root)}:{st.st_size}:{st.st_mtime_ns};".encode())
+    return h.hexdigest()[:16]
+
+
+def configure_numba_cache() -> str:
+    """Point numba's on-disk cache at a directory keyed by the project's sources; return it.
+
+    numba's ``cache=True`` revalidates a cached function against its own source file only, not the
+    modules whose globals it froze (``sfa.layout`` state sizes) or whose jitted functions it calls, so
+    after editing one of those a stale cache silently runs the old machine code. Keying the directory
+    on the whole source tree makes any edit start a fresh cache. The base directory is
+    ``$SFA_NUMBA_CACHE_BASE``, else ``$NUMBA_CACHE_DIR`` (as the systemd unit sets), else
+    ``~/.cache/sfa/numba``. Must run before numba is imported; a no-op if it already was.
+    """
+    if "numba" in sys.modules:
+        return os.environ.get("NUMBA_CACHE_DIR", "")
+    base = (
+        os.environ.get("SFA_NUMBA_CACHE_BASE")
+        or os.environ.get("NUMBA_CACHE_DIR")
+        or str(Path.home() / ".cache" / "sfa" / "numba")
+    )
+    os.environ["SFA_NUMBA_CACHE_BASE"] = base  # child processes key on the same base
+    path = str(Path(base) / source_fingerprint())
+    os.environ["NUMBA_CACHE_DIR"] = path
+    return path
 
 
 def _known_errors() -> tuple[type[BaseException], ...]:
@@ -71,6 +111,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
+    configure_numba_cache()
     parser = build_parser()
     args = parser.parse_args(argv)
     run = getattr(args, "_run", None)

@@ -2,6 +2,10 @@
 
 from hypothesis import HealthCheck, settings
 
+from sfa.cli import configure_numba_cache
+
+configure_numba_cache()  # before any test imports numba: no stale compiled kernels after an edit
+
 settings.register_profile(
     "sfa",
     deadline=None,

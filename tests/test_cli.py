@@ -33,3 +33,20 @@ def test_python_m_sfa_runs_the_dispatcher():
         [sys.executable, "-m", "sfa", "--help"], capture_output=True, text=True, timeout=60, check=True
     )
     assert "SFA train and tram positioning service" in out.stdout
+
+
+def test_numba_cache_is_keyed_by_the_sources(tmp_path):
+    code = (
+        "import os, sys\n"
+        "from sfa.cli import configure_numba_cache, source_fingerprint\n"
+        "p = configure_numba_cache()\n"
+        "import numba\n"
+        "print(p, numba.config.CACHE_DIR, source_fingerprint())\n"
+    )
+    env = {k: v for k, v in __import__("os").environ.items() if "NUMBA" not in k}
+    env["SFA_NUMBA_CACHE_BASE"] = str(tmp_path)
+    out = subprocess.run(
+        [sys.executable, "-c", code], capture_output=True, text=True, timeout=120, env=env, check=True
+    ).stdout.split()
+    assert out[0] == out[1] == str(tmp_path / out[2])
+    assert len(out[2]) == 16
