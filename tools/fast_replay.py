@@ -30,7 +30,7 @@ from __future__ import annotations
 
 import math
 import sys
-from collections import Counter
+from collections import Counter, deque
 from dataclasses import dataclass
 
 import numpy as np
@@ -107,12 +107,16 @@ class _Prefix:
         self.est_rows: list[tuple] = []
         self.upd: list[tuple] = []
         self.gps_rows: list[tuple] = []
-        self.by_seq: dict = {}
-        self.seen_new: set[int] = set()
-        self.pipe.on_output = self.by_seq.__setitem__
+        self.by_seq: dict = {}  # SEQ -> the estimate last encoded with it
+        self.fresh: deque[int] = deque()  # SEQs encoded as new estimates, not yet seen in an output
+        self.pipe.on_output = self._on_output
         self.pipe.on_update = lambda u: self.upd.append(
             (u.t_s, u.kind, int(u.outcome), math.nan if u.nis is None else float(u.nis))
         )
+
+    def _on_output(self, seq: int, est) -> None:
+        self.by_seq[seq] = est
+        self.fresh.append(seq)
 
     def record(self, outputs, now) -> None:
         from listener.codec import decode_output
@@ -120,8 +124,12 @@ class _Prefix:
         for payload in outputs:
             msg = decode_output(payload[:18])
             est = self.by_seq[msg.seq]
-            retransmit = 1 if msg.seq in self.seen_new else 0
-            self.seen_new.add(msg.seq)
+            # as tools.replay: a new estimate's datagram follows its encoding; anything else is a resend
+            if self.fresh and self.fresh[0] == msg.seq:
+                self.fresh.popleft()
+                retransmit = 0
+            else:
+                retransmit = 1
             self.est_rows.append(
                 (
                     msg.epoch,
@@ -139,8 +147,6 @@ class _Prefix:
                     est.lon_deg,
                 )
             )
-        if len(self.seen_new) > 70000:
-            self.seen_new.clear()
 
     def feed(self, t, addr, payload, gps) -> None:
         pipe = self.pipe
