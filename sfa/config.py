@@ -75,6 +75,7 @@ class FilterConfig:
     odo_timeout_s: float = 1.0  #: odometer silent longer than this: timed out [s]
     gps_timeout_s: float = 3.0  #: GNSS without an accepted fix longer than this: timed out [s]
     late_tolerance_s: float = 1e-6  #: IMU/odometer older than the state by more than this are dropped [s]
+    max_time_jump_s: float = 10.0  #: a measurement further ahead of the state needs confirming [s]
     # --- interval and status
     confidence: float = 0.95  #: two-sided confidence of the arc-length interval [probability]
     degraded_sigma_m: float = 5.0  #: sigma_s above which the status is DEGRADED [m]

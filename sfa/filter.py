@@ -128,6 +128,7 @@ class TrackFilter:
         self._reported = 0  # index into _hyps of the reported hypothesis
         self._junctions = None  # built lazily: line_id -> list of (key, s_on_line, other_line, s_other)
         self._track_errors = _track_errors()
+        self._jump_candidate = math.nan  # time of the last measurement rejected as a forward time jump
 
     # ------------------------------------------------------------------ public API
     @property
@@ -156,6 +157,9 @@ class TrackFilter:
 
     def process(self, meas) -> Update:
         """Apply one measurement (in time order). Bad values are rejected and counted, never raised."""
+        if self._hyps and not isinstance(meas, InitMeas) and self._is_time_jump(meas):
+            kind = {ImuMeas: "imu", OdoMeas: "odo", GpsMeas: "gps"}.get(type(meas), "?")
+            return Update(kind, float(meas.t_s), Outcome.INVALID)
         if isinstance(meas, ImuMeas):
             return self._process_imu(meas)
         if isinstance(meas, OdoMeas):
@@ -338,6 +342,26 @@ class TrackFilter:
         if self._junction_map():
             self._spawn_branches()
         return Update("gps", t, Outcome(code), nis)
+
+    def _is_time_jump(self, meas) -> bool:
+        """A measurement more than max_time_jump_s ahead of the state (a corrupted epoch, say) is
+        rejected unless the measurement just before it was also such a jump to within 1 s: a real gap
+        of the whole sensor set is confirmed by the next measurement, a single bad epoch is not."""
+        try:
+            t = float(meas.t_s)
+        except (TypeError, ValueError, AttributeError):
+            return False
+        t_state = float(self._hyps[self._reported].aux[L.A_T_STATE])
+        if not (math.isfinite(t) and t - t_state > self._config.max_time_jump_s):
+            self._jump_candidate = math.nan
+            return False
+        confirmed = math.isfinite(self._jump_candidate) and abs(t - self._jump_candidate) <= 1.0
+        self._jump_candidate = t
+        if confirmed:
+            self._jump_candidate = math.nan
+            return False
+        self._count_all(L.C_TIME_JUMP, 1)
+        return True
 
     def _score(self, nis_slot: int) -> None:
         """Hypothesis score: robust log-likelihood -NIS/2 (capped) of GNSS fixes, odometer and gyro

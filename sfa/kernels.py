@@ -352,6 +352,8 @@ def predict_to(x, P, aux, cnt, cfg, ts, tg, t):
     n = int(math.ceil(dt_total / cfg[K_MAX_DT]))
     if n < 1:
         n = 1
+    if n > 10000:  # a long confirmed gap: the status is LOST long before, keep the cost bounded
+        n = 10000
     h = dt_total / n
     for _ in range(n):
         _predict_step(x, P, aux, cfg, ts, tg, h, imu_ok)

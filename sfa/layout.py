@@ -96,7 +96,8 @@ C_GYRO_OK = 25
 C_GYRO_GATED = 26
 C_GPS_LATE_USED = 27
 C_SLIP_REWIND = 28
-NCNT = 29
+C_TIME_JUMP = 29
+NCNT = 30
 
 COUNTER_NAMES = (
     "imu_accepted", "imu_late", "imu_invalid",
@@ -106,7 +107,7 @@ COUNTER_NAMES = (
     "imu_timeouts", "odo_timeouts", "gps_timeouts",
     "initialisations", "covariance_repairs", "not_initialised",
     "gps_held_off", "gps_reacquisitions", "odo_reanchors",
-    "gyro_accepted", "gyro_gated", "gps_late_applied", "slip_rewinds",
+    "gyro_accepted", "gyro_gated", "gps_late_applied", "slip_rewinds", "time_jumps_rejected",
 )
 assert len(COUNTER_NAMES) == NCNT
 

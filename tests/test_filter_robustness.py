@@ -230,3 +230,26 @@ def test_deterministic_and_batch_identical(db, cfg):
     np.testing.assert_allclose(c, a, rtol=1e-9, atol=1e-9)
     assert [e.status for e in est_a] == [FilterStatus(int(s)) for s in res.status]
     assert fa.counters() == fb.counters()
+
+
+def test_single_corrupted_future_epoch_is_rejected_a_real_gap_is_not(db, cfg):
+    run = generate(db, 1, 60.0, IMU, ODO, GPS, seed=19)
+    f = TrackFilter(db, cfg)
+    ms = run.measurements
+    for m in ms[:3000]:
+        f.process(m)
+    t_state = f.estimate().epoch_s
+    # one IMU datagram whose epoch is 1e5 s ahead (a flipped bit): rejected, nothing stalls
+    bad = ImuMeas(t_state + 1e5, (0.0, 0.0, -9.8), (0.0, 0.0, 0.0))
+    assert f.process(bad).outcome == Outcome.INVALID
+    assert f.counters()["time_jumps_rejected"] == 1
+    for m in ms[3000:]:
+        f.process(m)
+    e = f.estimate()
+    assert e.epoch_s == ms[-1].t_s and e.status == FilterStatus.NOMINAL
+    assert abs(e.arc_length_m - run.s_m[-1]) < 1.0
+    # a real 30 s gap of every sensor: the second sample confirms it and the filter carries on
+    t1 = ms[-1].t_s + 30.0
+    assert f.process(OdoMeas(t1, 0.0, 0.03)).outcome == Outcome.INVALID
+    assert f.process(OdoMeas(t1 + 0.05, 0.0, 0.03)).outcome != Outcome.INVALID
+    assert f.estimate().epoch_s == t1 + 0.05 and f.counters()["time_jumps_rejected"] == 2
