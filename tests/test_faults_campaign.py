@@ -26,7 +26,7 @@ BASE = {
 }
 
 
-def campaign(*rows, duration_s=25.0):
+def campaign(*rows, duration_s=12.0):
     return campaign_from_dict(
         {
             "campaign": {"name": "t", "duration_s": duration_s, "seed": 2},
@@ -104,7 +104,7 @@ def test_replay_row_injected_equals_counted_and_is_deterministic(tmp_path):
         k: v for k, v in again.items() if k != "wall_s"
     }
     trace = json.loads((tmp_path / "a" / "lossy" / "trace.json").read_text())
-    assert trace["input_proxy"]["received"] > 2000
+    assert trace["input_proxy"]["received"] > 1000  # 12 s of IMU 100 Hz, odometer 20 Hz, GNSS, control
 
 
 def test_authenticated_link_rejects_every_forged_replayed_and_flipped_datagram(tmp_path):
@@ -120,7 +120,7 @@ def test_authenticated_link_rejects_every_forged_replayed_and_flipped_datagram(t
                 "forge_valid_fraction": 0.5,
                 "garbage_rate_hz": 200.0,
                 "inject_start_s": 2.0,
-                "inject_end_s": 20.0,
+                "inject_end_s": 10.0,
             },
             "expect": {"auth_bad": 0, "crashes": 0},
         }
@@ -148,7 +148,7 @@ def test_campaign_tables_and_stall_guard(tmp_path):
     c = campaign(
         {"name": "clean", "expect": {"crashes": 0, "losses_match": True}},
         {"name": "stalls", "timeout_s": 0.2},
-        duration_s=15.0,
+        duration_s=8.0,
     )
     rows = run_campaign(c, "replay", tmp_path, jobs=2)
     assert [r["scenario"] for r in rows] == ["clean", "stalls"]
