@@ -2,13 +2,14 @@
 
 - ``odometer_dead_reckoning``: s(t) = s0 + d * integral of the odometer speed (sample held until the
   next one), restarted by each GROUND TRUTH. No IMU, no GNSS, no scale-factor estimation.
-- ``gnss_projection``: each usable GNSS fix projected onto the line (``TrackLine.project_latlon``),
-  held until the next fix. No motion sensor.
+- ``gnss_projection``: each usable GNSS fix projected onto the line near the previous position (the
+  nearest pass of the line within reach since the previous fix), held until the next fix. No motion
+  sensor.
 - ``plain_filterpy_ekf``: a textbook per-message FilterPy ``ExtendedKalmanFilter`` of the same sensors
   *without* track-aware GNSS handling. State [s, v, b_a, k_o]; the IMU drives the prediction exactly
   as in the SFA filter (f_x - b_a - g sin(theta)); the odometer updates v (1 + k_o) with its sigma;
-  each GNSS fix is first projected onto the line and used as a scalar arc-length measurement with
-  the receiver's reported sigma_h. No GNSS error state, no lateral handling, no gating, no integrity.
+  each GNSS fix is first projected onto the line (near the predicted position) and used as a scalar
+  arc-length measurement with the receiver's reported sigma_h. No GNSS error state, no lateral handling, no gating, no integrity.
 
 Each returns a ``BaselineResult`` with one row per input measurement (the estimate after it).
 """
@@ -56,8 +57,36 @@ def odometer_dead_reckoning(measurements) -> BaselineResult:
     return BaselineResult("odometer dead reckoning", t_out, s_out)
 
 
-def gnss_projection(track, measurements, line_id: int | None = None) -> BaselineResult:
-    """Project each usable fix onto the line (of the first GROUND TRUTH unless given) and hold it."""
+def _project_near(line, east_m: float, north_m: float, s_ref_m: float, window_m: float) -> float:
+    """Arc length of the nearest point of ``line`` among its segments within ``window_m`` of ``s_ref_m``.
+
+    A route that passes the same place twice (out and back, loops) has two nearest points; the fix
+    belongs to the pass the train is on, so the search is local to where the track position was.
+    """
+    s_v, e_v, n_v = line.s_m, line.east_m, line.north_m
+    i0 = max(int(np.searchsorted(s_v, s_ref_m - window_m)) - 1, 0)
+    i1 = min(int(np.searchsorted(s_v, s_ref_m + window_m)) + 1, s_v.size - 1)
+    if i1 <= i0:
+        return float(s_ref_m)
+    ax, ay = e_v[i0:i1], n_v[i0:i1]
+    dx, dy = e_v[i0 + 1 : i1 + 1] - ax, n_v[i0 + 1 : i1 + 1] - ay
+    seg2 = dx * dx + dy * dy
+    u = np.clip(((east_m - ax) * dx + (north_m - ay) * dy) / np.where(seg2 > 0, seg2, 1.0), 0.0, 1.0)
+    d2 = (ax + u * dx - east_m) ** 2 + (ay + u * dy - north_m) ** 2
+    k = int(np.argmin(d2))
+    # arc length maps linearly onto each local segment (track_db convention)
+    return float(s_v[i0 + k] + u[k] * (s_v[i0 + k + 1] - s_v[i0 + k]))
+
+
+def gnss_projection(
+    track, measurements, line_id: int | None = None, window_m: float = 300.0, max_speed_mps: float = 100.0
+) -> BaselineResult:
+    """Project each usable fix onto the line (of the first GROUND TRUTH unless given) and hold it.
+
+    Each fix is projected onto the part of the line within ``window_m + max_speed_mps * dt`` of the
+    previous position (the GROUND TRUTH, then the previous fix, ``dt`` seconds earlier), so a route
+    that passes a place twice is not confused, and an outage of any length is bridged.
+    """
     if line_id is None:
         line_id = next((m.line_id for m in measurements if isinstance(m, InitMeas)), None)
     line = track.line(line_id)
@@ -69,7 +98,11 @@ def gnss_projection(track, measurements, line_id: int | None = None) -> Baseline
         if isinstance(m, InitMeas) and not math.isfinite(s):
             s, t = m.arc_length_m, m.t_s
         elif isinstance(m, GpsMeas) and m.fix_quality != 0 and math.isfinite(m.lat_deg + m.lon_deg):
-            s_fix, _ = line.project_latlon(m.lat_deg, m.lon_deg)
+            e, nn = track.to_local(m.lat_deg, m.lon_deg)
+            if math.isfinite(s):
+                s_fix = _project_near(line, float(e), float(nn), s, window_m + max_speed_mps * (m.t_s - t))
+            else:
+                s_fix, _ = line.project(float(e), float(nn))
             s, t = float(s_fix), m.t_s
         t_out[i], s_out[i] = (m.t_s if math.isfinite(t) else math.nan), s
     return BaselineResult("GNSS projection", t_out, s_out)
@@ -138,7 +171,9 @@ def plain_filterpy_ekf(track, measurements, config: FilterConfig | None = None) 
                     ekf.update(np.array([[m.speed_mps]]), odo_j, odo_h, R=np.array([[r]]))
             elif isinstance(m, GpsMeas) and m.fix_quality != 0:
                 if math.isfinite(m.lat_deg) and math.isfinite(m.lon_deg):
-                    s_fix, _ = line.project_latlon(m.lat_deg, m.lon_deg)
+                    # projected near the predicted position (a route may pass a place twice)
+                    e, nn = track.to_local(m.lat_deg, m.lon_deg)
+                    s_fix = _project_near(line, float(e), float(nn), float(ekf.x[0, 0]), 300.0)
                     sig = m.sigma_h_m if m.sigma_h_m and m.sigma_h_m > 0 else c.gps_nominal_sigma_h_m
                     ekf.update(np.array([[float(s_fix)]]), s_j, s_h, R=np.array([[sig * sig]]))
         if line is not None:

@@ -172,3 +172,30 @@ def test_reinitialisation_keeps_calibration(db):
     assert x1[0] == 5000.0 and x1[1] == 3.0
     assert x1[3] == x0[3] and P1[3, 3] == P0[3, 3]  # odometer scale kept
     assert f.counters()["initialisations"] == 2
+
+
+def test_gnss_projection_baseline_keeps_to_the_pass_it_is_on(tmp_path):
+    """An out-and-back line passes every place twice: the baseline must stay on the current pass."""
+    import math
+
+    from sfa.baselines import gnss_projection
+    from sfa.measurements import GpsMeas, InitMeas
+    from track_db import TrackDatabase
+    from track_db.build import LineGeometry, create_database
+
+    lat0, lon0 = 50.93, 11.58
+    east = np.concatenate([np.arange(0.0, 1000.0, 10.0), np.arange(1000.0, -1.0, -10.0)])
+    north = np.concatenate([np.zeros(100), np.full(101, 30.0)])  # back along a parallel 30 m away
+    lat = lat0 + np.degrees(north / 6378137.0)
+    lon = lon0 + np.degrees(east / (6378137.0 * math.cos(math.radians(lat0))))
+    db = TrackDatabase.open(create_database(tmp_path / "ob.db", [LineGeometry("out and back", lat, lon)]))
+    line = db.line(1)
+    # a train on the way back at s ~ 1500 m (east ~ 470 m), its fixes 20 m off towards the outward leg
+    s_true = np.arange(1500.0, 1600.0, 10.0)
+    meas = [InitMeas(0.0, 1500.0, 10.0, 1)]
+    for k, s in enumerate(s_true):
+        la, lo = line.latlon_at(float(s))
+        meas.append(GpsMeas(1.0 + k, la - np.degrees(20.0 / 6378137.0), lo, 0.0, 1.5, 1, 10))
+    res = gnss_projection(db, meas)
+    got = res.arc_length_m[1:]
+    assert np.all(np.abs(got - s_true) < 2.0), got  # the nearest point overall would be s ~ 500 m
