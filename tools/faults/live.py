@@ -286,8 +286,16 @@ def run_live(spec: ScenarioSpec, out: Path) -> Observation:
     obcu_offset = t_start - t_obcu
     arrival = t_arr - obcu_offset
     first_out = float(arrival[0]) if arrival.size else 0.0
+    started = [t for t, ev in readers["proxy_out"].events if ev.get("event") == "proxy_started"] \
+        if "proxy_out" in readers else []
+    if started:  # the output proxy said when its clock started: exact, not the first arrival at the OBCU
+        first_out = started[0] - t_start
     outages = tuple((a + first_out, d) for a, d in (spec.output_link.blackouts if spec.output_link else ()))
     outages += tuple((a - obcu_offset, d) for a, d in spec.obcu.silent + spec.obcu.drop_acks)
+    started_in = [t for t, ev in readers["proxy_in"].events if ev.get("event") == "proxy_started"] \
+        if "proxy_in" in readers else []
+    first_in = started_in[0] - t_start if started_in else 0.0
+    in_blackouts = tuple((a + first_in, d) for a, d in (spec.input_link.blackouts if spec.input_link else ()))
     if t_arr.size:
         lag = t_arr - (epoch - epoch[0]) / spec.speed  # wall seconds, up to a constant
         age = lag - lag.min()
@@ -311,7 +319,7 @@ def run_live(spec: ScenarioSpec, out: Path) -> Observation:
         fresh_arc=est["arc_length"][mask], fresh_lo=est["lo"][mask], fresh_hi=est["hi"][mask],
         fresh_age=age, fresh_reasons=None, metrics=metrics, link_transitions=transitions,
         input_proxy=proxies["proxy_in"], output_proxy=proxies["proxy_out"],
-        input_blackouts=spec.input_link.blackouts if spec.input_link else (),
+        input_blackouts=in_blackouts,
         output_blackouts=outages,
         sensor_fault_windows=fault_windows(sc, sim), crashes=crashes,
         memory_growth_mb=growth, latency_p99_ms=float(np.percentile(age, 99) * 1000.0) if age.size else None,

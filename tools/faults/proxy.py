@@ -70,7 +70,10 @@ class UdpFaultProxy:
     def on_client(self, data: bytes, addr: Any) -> None:
         assert self._loop is not None
         client = (addr[0], addr[1])
+        first = self.core.start is None
         self._dispatch_up(self.core.forward(data, client, self._loop.time()))
+        if first:  # the windows (blackouts, injections) count from here: say when, for alignment
+            print(json.dumps({"event": "proxy_started"}), file=self.log, flush=True)
         self._rearm()
 
     def on_upstream(self, data: bytes, client: Hashable) -> None:
