@@ -138,6 +138,7 @@ def replay_rows(tmp: Path, quick: bool, repeats: int, quick_s: float = 300.0, lo
     log(f"replay: filter core ({n_meas:,} measurements) x{repeats}")
     t_core, t_core_all = median_of(lambda: run_core(run_packed, "numba"), repeats)
     core_rate = n_meas / t_core
+    fresh_ok = _core_is_fresh(packed, cfg, geometry, last["numba"])
     c_row = None
     c_rate = None
     try:
@@ -174,7 +175,8 @@ def replay_rows(tmp: Path, quick: bool, repeats: int, quick_s: float = 300.0, lo
             f"filter core alone, sfa.batch.run_packed ({span})",
             core_rate,
             "meas/s",
-            compared=f"C reference {'(see next row)' if c_row else 'skipped'}",
+            compared=f"C reference {'(see next row)' if c_row else 'skipped'}; equal to a freshly "
+            f"compiled loop of the same kernels: {fresh_ok}",
             repeats=repeats,
             samples=tuple(n_meas / t for t in t_core_all),
         )
@@ -316,6 +318,36 @@ def _same_new_estimates(exact, fast) -> bool:
         if x.shape != y.shape or not np.array_equal(x, y, equal_nan=True):
             return False
     return True
+
+
+def _core_is_fresh(packed, cfg, geometry, result) -> bool:
+    """run_packed's outputs equal those of tools.fast_loop (same kernels, never disk-cached): False means
+    numba's disk cache of sfa.batch.run_packed predates a change of sfa/kernels.py (numba keys the cache
+    on the caller's file only); delete sfa/__pycache__/batch.* to refresh it."""
+    from sfa import layout as L
+    from tools.fast_loop import run_replay_loop
+
+    n = packed.kind.size
+    out_f = np.zeros((n, 5))
+    out_i = np.zeros((n, 4), dtype=np.int64)
+    run_replay_loop(
+        packed.kind,
+        packed.t_s,
+        packed.values,
+        np.zeros(L.NX),
+        np.zeros((L.NX, L.NX)),
+        np.zeros(L.NAUX),
+        np.zeros(L.NCNT, dtype=np.int64),
+        np.zeros(L.NMEM),
+        cfg,
+        *geometry,
+        -np.inf,
+        np.nan,
+        out_f,
+        out_i,
+    )
+    fa, ia, _ = result
+    return bool(np.array_equal(fa, out_f[:, :4], equal_nan=True) and np.array_equal(ia, out_i[:, :3]))
 
 
 def _naive_note(core_rate, c_rate, naive_rate, n_meas, n_dg) -> str:

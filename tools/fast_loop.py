@@ -19,7 +19,9 @@ from sfa import kernels as K
 from sfa import layout as L
 
 
-@njit(cache=True)
+# Not cached on disk: numba's cache is keyed on this file only, so a cached loop would keep running
+# the sfa.kernels it was compiled with after sfa/kernels.py changes (compiled once per process).
+@njit(cache=False)
 def run_replay_loop(
     kind, t, vals, x, P, aux, cnt, mem, cfg, ts, te, tn, tg, tk, last_epoch, last_s, out_f, out_i
 ):

@@ -271,6 +271,10 @@ def _replay_scanned(scan, track, options):
     kind, t_s, vals = pack_rows(dec, mrows, track)
     nm = mrows.size
 
+    why = _time_jump_reason(filt, aux, t_s)
+    if why:
+        return None, _info(False, why, h)
+
     from tools.fast_loop import interp_many, run_replay_loop
 
     cfg = filt.config.to_array()
@@ -461,6 +465,22 @@ def _check_sequences(key_all, dec, h, n, options) -> str:
         first_ok = s[0] == (last_seq[k] + 1) & 0xFFFF
         if not first_ok or np.any((np.diff(s) & 0xFFFF) != 1):
             return "a stream with a gap, a duplicate or reordering (needs the sequence buffer)"
+    return ""
+
+
+def _time_jump_reason(filt, aux, t_s: np.ndarray) -> str:
+    """The per-message filter rejects a measurement far ahead of its state unless the next confirms the
+    gap (TrackFilter._is_time_jump); the compiled loop does not: any forward gap of half that size or
+    more goes to the exact replay (the margin covers a state time behind the newest epoch)."""
+    limit = getattr(filt.config, "max_time_jump_s", None)
+    if limit is None or t_s.size == 0:
+        return ""
+    from sfa import layout as L
+
+    newest = np.maximum.accumulate(np.concatenate([[float(aux[L.A_T_STATE])], t_s]))[:-1]
+    gaps = t_s - newest
+    if np.any(gaps > 0.5 * float(limit)):
+        return f"a forward time jump of {float(np.max(gaps)):.1f} s (the filter's time-jump rule)"
     return ""
 
 

@@ -166,6 +166,7 @@ static void predict_to(double *x, double *P, double *aux, long *cnt, const doubl
     int imu_ok = (t - aux[A_T_IMU]) <= cfg[K_IMU_TIMEOUT];
     long n = (long)ceil(dt_total / cfg[K_MAX_DT]);
     if (n < 1) n = 1;
+    if (n > 10000) n = 10000; /* a long confirmed gap: keep the cost bounded */
     double h = dt_total / (double)n;
     for (long k = 0; k < n; k++) predict_step(x, P, aux, cfg, ts, tg, nv, h, imu_ok);
     aux[A_T_STATE] = t;
@@ -471,7 +472,7 @@ static long step_imu(double *x, double *P, double *aux, long *cnt, double *mem, 
         H[S] = x[V] * slope_at(ts, tk, nv, x[S]);
         H[V] = k;
         H[BG] = 1.0;
-        R[0] = pow(cfg[K_GYRO_SIGMA], 2);
+        R[0] = pow(cfg[K_GYRO_SIGMA], 2) + pow(x[V] * cfg[K_CURV_SIGMA], 2); /* sensor + v * curvature error */
         y[0] = wz - (x[V] * k + x[BG]);
         innovation(P, H, R, y, 1, &in);
         aux[A_LAST_NIS_GYRO] = in.nis;
