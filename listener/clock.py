@@ -12,7 +12,8 @@ Jitter therefore never drags the estimate; only the minimum delay (typically ten
 a switched Ethernet) stays as a constant bias, which is below every sensor's sampling period.
 
 A step larger than ``max_step_s`` between the prediction and a new STROBE (sensor-set clock reset,
-listener restart) discards the window and restarts the estimate from that STROBE.
+listener restart) discards the window and restarts the estimate, once a second STROBE confirms the
+new offset: a single corrupted timestamp is ignored (counted as ``unconfirmed``).
 """
 
 from __future__ import annotations
@@ -34,6 +35,8 @@ class StrobeClock:
         self._intercept = 0.0
         self.resets = 0  #: times the model was restarted by a clock step
         self.strobes = 0  #: STROBEs used
+        self.unconfirmed = 0  #: STROBEs that disagreed with the model and were not (yet) confirmed
+        self._candidate: float | None = None
 
     @property
     def synced(self) -> bool:
@@ -48,8 +51,16 @@ class StrobeClock:
         if self._samples:
             predicted = self.offset_at(now)
             if abs(offset - predicted) > self._cfg.max_step_s:
+                # a step: believed only when the next STROBE confirms it (one corrupted timestamp
+                # must not move the timebase)
+                cand = self._candidate
+                if cand is None or abs(offset - cand) > self._cfg.max_step_s:
+                    self._candidate = offset
+                    self.unconfirmed += 1
+                    return
                 self._samples.clear()
                 self.resets += 1
+        self._candidate = None
         self._samples.append((now, offset))
         self.strobes += 1
         self._fit()

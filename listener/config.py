@@ -42,7 +42,11 @@ class ClockConfig:
 
     window_strobes: int = 120  #: STROBEs kept for the offset and skew estimate [count]
     max_pending_undated: int = 512  #: undated measurements held until the first STROBE [count]
-    max_step_s: float = 1.0  #: an offset change larger than this resets the clock model [s]
+    max_step_s: float = (
+        1.0  #: an offset change larger than this (confirmed by a second STROBE) resets the model [s]
+    )
+    #: a measurement whose epoch is further ahead of the STROBE clock's sensor time is rejected [s]
+    max_future_s: float = 2.0
 
 
 @dataclass(frozen=True)
@@ -161,6 +165,7 @@ def _validate(cfg: ListenerConfig) -> None:
     need(cfg.clock.window_strobes >= 1, "clock.window_strobes", "must be >= 1")
     need(cfg.clock.max_pending_undated >= 0, "clock.max_pending_undated", "must be >= 0")
     need(cfg.clock.max_step_s > 0.0, "clock.max_step_s", "must be > 0")
+    need(cfg.clock.max_future_s > 0.0, "clock.max_future_s", "must be > 0")
     need(cfg.merge.hold_s >= 0.0, "merge.hold_s", "must be >= 0")
     need(cfg.merge.max_pending >= 1, "merge.max_pending", "must be >= 1")
     need(1 <= cfg.link.obcu_port <= 65535, "link.obcu_port", "must be in 1..65535")

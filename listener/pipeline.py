@@ -48,8 +48,17 @@ from listener.seqbuf import SeqBufferConfig, StreamTable, stream_key
 
 #: input counters present in every metrics snapshot, even while zero
 _ALWAYS_REPORTED = (
-    "received", "rejected", "processed", "strobes", "stops", "dated_by_epoch", "dated_by_strobe",
-    "undated_overflow", "merge_overflow", "after_stop",
+    "received",
+    "rejected",
+    "processed",
+    "strobes",
+    "stops",
+    "dated_by_epoch",
+    "dated_by_strobe",
+    "undated_overflow",
+    "merge_overflow",
+    "after_stop",
+    "stale_not_sent",
 )
 _TYPE_NAMES = {1: "imu", 2: "odometer", 3: "gps", 8: "ground_truth", 9: "strobe", 10: "stop"}
 
@@ -175,7 +184,6 @@ class Pipeline:
             if isinstance(msg, Strobe):
                 self.counters["strobes"] += 1
                 self.clock.on_strobe(msg.timestamp, item.arrival)
-                self._newest_epoch = max(self._newest_epoch, msg.timestamp)
                 self._date_undated()
             elif isinstance(msg, Stop):
                 self.counters["stops"] += 1
@@ -201,6 +209,12 @@ class Pipeline:
                 return
             self.counters["dated_by_strobe"] += 1
         else:
+            ref = self.clock.to_sensor_time(item.arrival)
+            if ref is not None and epoch > ref + self.cfg.clock.max_future_s:
+                # e.g. a flipped exponent bit: one such epoch would drag the filter far into the future
+                self.counters["rejected"] += 1
+                self.rejected["epoch_future"] += 1
+                return
             self.counters["dated_by_epoch"] += 1
         self._newest_epoch = max(self._newest_epoch, epoch)
         self._order += 1
@@ -241,6 +255,11 @@ class Pipeline:
     def _maybe_output(self, now: float) -> list[bytes]:
         est = self.filter.estimate()
         if not math.isfinite(est.epoch_s) or not math.isfinite(est.arc_length_m):
+            return []
+        sensor_now = self.clock.to_sensor_time(now)
+        if sensor_now is not None and est.epoch_s < sensor_now - self.cfg.link.max_output_age_s:
+            # behind by more than the freshness bound (a backlog): never sent as a fresh estimate
+            self.counters["stale_not_sent"] += 1
             return []
         if est.epoch_s < self._last_output_epoch:
             return []
@@ -307,6 +326,7 @@ class Pipeline:
             },
             "clock": {
                 "synced": self.clock.synced,
+                "unconfirmed_strobes": self.clock.unconfirmed,
                 "strobes": self.clock.strobes,
                 "resets": self.clock.resets,
                 "undated_pending": len(self._undated),

@@ -46,9 +46,22 @@ def test_step_resets_the_model():
     clock = StrobeClock(ClockConfig(max_step_s=1.0))
     for k in range(5):
         clock.on_strobe(500.0 + k, float(k))
-    clock.on_strobe(9000.0, 5.0)  # sensor set restarted its clock
+    clock.on_strobe(9000.0, 5.0)  # sensor set restarted its clock ...
+    assert clock.resets == 0 and clock.unconfirmed == 1
+    assert abs(clock.to_sensor_time(5.0) - 505.0) < 1e-9  # not believed from one STROBE
+    clock.on_strobe(9001.0, 6.0)  # ... and the next STROBE confirms it
     assert clock.resets == 1
-    assert abs(clock.to_sensor_time(5.0) - 9000.0) < 1e-9
+    assert abs(clock.to_sensor_time(6.0) - 9001.0) < 1e-9
+
+
+def test_one_corrupted_strobe_does_not_move_the_timebase():
+    clock = StrobeClock(ClockConfig(max_step_s=1.0))
+    for k in range(10):
+        clock.on_strobe(500.0 + k, float(k))
+    clock.on_strobe(5.0e8, 10.0)  # a flipped exponent bit
+    clock.on_strobe(511.0, 11.0)
+    assert clock.resets == 0 and clock.unconfirmed == 1
+    assert abs(clock.to_sensor_time(11.5) - 511.5) < 1e-9
 
 
 def test_non_finite_strobes_are_ignored():

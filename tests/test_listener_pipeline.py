@@ -218,3 +218,24 @@ def test_config_rejects_bad_values():
         with pytest.raises(ConfigError) as exc:
             config_from_dict(bad)
         assert str(exc.value).startswith(key), (bad, str(exc.value))
+
+
+def test_a_far_future_epoch_is_rejected_and_changes_nothing(track, run):
+    """A bit flip can leave an epoch valid but far ahead: it must not drag the filter into the future."""
+    clean = _feed(_pipeline(track), _datagrams(run))
+    dgrams = _datagrams(run)
+    # replace one IMU datagram in the middle by the same sample dated 1e5 s ahead (same seq)
+    k = next(i for i in range(len(dgrams) // 2, len(dgrams)) if dgrams[i][2][0] == 1)
+    from listener.codec import decode_input
+
+    msg = decode_input(dgrams[k][2])
+    bad = encode_input(ImuSample(msg.seq, msg.ax, msg.ay, msg.az, msg.gx, msg.gy, msg.gz, msg.epoch + 1e5))
+    dgrams[k] = (dgrams[k][0], dgrams[k][1], bad)
+    pipe = _pipeline(track)
+    got = [decode_output(o) for o in _feed(pipe, dgrams)]
+    m = pipe.metrics()["input"]
+    assert m["rejected_by_reason"] == {"epoch_future": 1}
+    ref = [decode_output(o) for o in clean]
+    # the only difference is the one missing IMU sample: the run continues, close to the clean one
+    assert max(o.epoch for o in got) == max(o.epoch for o in ref)
+    assert abs(got[-1].arc_length - ref[-1].arc_length) < 0.05
