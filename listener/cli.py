@@ -59,7 +59,9 @@ def run(args: argparse.Namespace) -> int:
         raise ConfigError(f"track {track_path}: no such file") from exc
     log = JsonLogger(level=cfg.log.level, warning_interval_s=cfg.log.warning_interval_s)
     try:
-        pipeline = Pipeline(track, cfg)
+        import time
+
+        pipeline = Pipeline(track, cfg, start_epoch=int(time.time()) & 0xFFFFFFFF)
     except Exception as exc:
         from sfa.errors import SfaError
 

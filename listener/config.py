@@ -93,6 +93,16 @@ class FilterSelection:
 
 
 @dataclass(frozen=True)
+class AuthSettings:
+    """Authenticated links (EN 50159 category 3 extension; off by default, see docs/protocol.md)."""
+
+    enabled: bool = False  #: wrap/verify every datagram on both links with a truncated HMAC-SHA256
+    key_file: str = ""  #: file with the master key as hex (at least 32 hex digits = 16 bytes)
+    tag_bytes: int = 16  #: tag length [bytes], 16..32 (16 = 128 bits)
+    window: int = 1024  #: anti-replay window per sender [extended sequence numbers]
+
+
+@dataclass(frozen=True)
 class ListenerConfig:
     """The whole listener configuration."""
 
@@ -103,6 +113,7 @@ class ListenerConfig:
     link: LinkConfig = field(default_factory=LinkConfig)
     log: LogConfig = field(default_factory=LogConfig)
     filter: FilterSelection = field(default_factory=FilterSelection)
+    auth: AuthSettings = field(default_factory=AuthSettings)
     watchdog_max_lag_s: float = 0.5  #: event-loop lag beyond which WATCHDOG=1 is withheld [s]
 
 
@@ -113,6 +124,7 @@ _SECTIONS = {
     "link": LinkConfig,
     "log": LogConfig,
     "filter": FilterSelection,
+    "auth": AuthSettings,
 }
 
 
@@ -188,6 +200,9 @@ def _validate(cfg: ListenerConfig) -> None:
     need(cfg.log.metrics_interval_s > 0.0, "log.metrics_interval_s", "must be > 0")
     need(cfg.log.warning_interval_s >= 0.0, "log.warning_interval_s", "must be >= 0")
     need(cfg.watchdog_max_lag_s > 0.0, "watchdog_max_lag_s", "must be > 0")
+    need(16 <= cfg.auth.tag_bytes <= 32, "auth.tag_bytes", "must be in 16..32")
+    need(cfg.auth.window >= 1, "auth.window", "must be >= 1")
+    need(not cfg.auth.enabled or bool(cfg.auth.key_file), "auth.key_file", "required when auth.enabled")
 
 
 def _set_dotted(tree: dict[str, Any], dotted: str, raw: str) -> None:
@@ -243,3 +258,18 @@ def load_config(path: str | Path | None = None, overrides: list[str] | None = No
         key, raw = item.split("=", 1)
         _set_dotted(tree, key.strip(), raw.strip())
     return config_from_dict(tree)
+
+
+def read_master_key(path: str) -> bytes:
+    """The master key from a file holding it as hex (whitespace ignored); at least 16 bytes."""
+    try:
+        text = Path(path).read_text()
+    except OSError as exc:
+        raise ConfigError(f"auth.key_file {path}: cannot read: {exc.strerror or exc}") from exc
+    try:
+        key = bytes.fromhex("".join(text.split()))
+    except ValueError:
+        raise ConfigError(f"auth.key_file {path}: not a hex string") from None
+    if len(key) < 16:
+        raise ConfigError(f"auth.key_file {path}: {len(key)} bytes, at least 16 required")
+    return key

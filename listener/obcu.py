@@ -27,6 +27,7 @@ class ObcuConfig:
     drop_acks: tuple[tuple[float, float], ...] = ()  #: (start, duration) windows without acks [s]
     silent: tuple[tuple[float, float], ...] = ()  #: (start, duration) windows ignoring everything [s]
     restart_at_s: tuple[float, ...] = ()  #: times at which all state is forgotten [s]
+    auth_master_key: bytes | None = None  #: authenticated links (extension): the master key, or None
 
 
 @dataclass(frozen=True)
@@ -54,6 +55,7 @@ class ObcuStats:
     acks_dropped: int = 0  #: acks withheld by a drop_acks window
     ignored_silent: int = 0  #: datagrams ignored during a silent window
     restarts: int = 0
+    auth_rejected: int = 0  #: datagrams failing authentication (extension enabled only)
     by_size: dict[int, int] = field(default_factory=dict)  #: datagram sizes seen
 
 
@@ -69,6 +71,20 @@ class MockObcu:
         self._start = start
         self._restarts_done = 0
         self.stats = ObcuStats()
+        self._auth = None
+        if self.cfg.auth_master_key is not None:
+            import time
+
+            from listener.auth import AuthState, EpochCounter, derive_link_key
+            from listener.auth_link import LINK_ACK, LINK_OUTPUT
+
+            key = self.cfg.auth_master_key
+            self._auth = (
+                derive_link_key(key, LINK_OUTPUT),
+                AuthState(),
+                derive_link_key(key, LINK_ACK),
+                EpochCounter(int(time.time()) & 0xFFFFFFFF),
+            )
         self._reset()
 
     def _reset(self) -> None:
@@ -94,6 +110,14 @@ class MockObcu:
         if _inside(now - self._start, self.cfg.silent):
             self.stats.ignored_silent += 1
             return None
+        if self._auth is not None:
+            from listener.auth import AuthError, output_seq, unwrap
+
+            try:
+                data = unwrap(data, self._auth[0], self._auth[1], addr, seq_of=output_seq)
+            except AuthError:
+                self.stats.auth_rejected += 1
+                return None
         try:
             if len(data) > 18:
                 ext = decode_output_extended(data)
@@ -150,4 +174,9 @@ class MockObcu:
             self.stats.acks_dropped += 1
             return []
         self.stats.acks_sent += 1
-        return [(encode_ack(self.newest_seq), self._peer)]
+        ack = encode_ack(self.newest_seq)
+        if self._auth is not None:
+            from listener.auth import wrap
+
+            ack = wrap(ack, self._auth[2], self._auth[3].epoch_for(self.newest_seq))
+        return [(ack, self._peer)]

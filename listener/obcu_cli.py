@@ -56,6 +56,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         metavar="T",
         help="forget all state at T seconds from start (repeatable)",
     )
+    parser.add_argument("--auth-key-file", help="authenticated links (extension): master key file, hex")
     parser.add_argument("--duration", type=float, help="exit after this many seconds")
     parser.add_argument("--idle-exit", type=float, help="exit after this many seconds without outputs")
     parser.add_argument("--quiet", action="store_true", help="no live display")
@@ -68,6 +69,7 @@ def run(args: argparse.Namespace) -> int:
     import signal
     import sys
 
+    from listener.config import read_master_key
     from listener.defaults import DEFAULT_OBCU_PORT
     from listener.errors import ConfigError
     from listener.obcu import MockObcu, ObcuConfig
@@ -84,6 +86,7 @@ def run(args: argparse.Namespace) -> int:
         drop_acks=tuple(args.drop_acks),
         silent=tuple(args.silent),
         restart_at_s=tuple(args.restart_at),
+        auth_master_key=None if not args.auth_key_file else read_master_key(args.auth_key_file),
     )
 
     csv_file = open(args.csv, "w", newline="") if args.csv else None  # noqa: SIM115 - closed below
@@ -208,6 +211,7 @@ def run(args: argparse.Namespace) -> int:
                     "acks_sent": st.acks_sent,
                     "acks_dropped": st.acks_dropped,
                     "ignored_silent": st.ignored_silent,
+                    "auth_rejected": st.auth_rejected,
                     "restarts": st.restarts,
                     "sizes": {str(k): v for k, v in st.by_size.items()},
                 }

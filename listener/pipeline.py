@@ -27,6 +27,8 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
+from listener.auth import AuthError
+from listener.auth_link import LinkAuth
 from listener.clock import StrobeClock
 from listener.codec import (
     DecodeError,
@@ -89,7 +91,9 @@ def to_measurement(msg: Any, t_s: float):
 class Pipeline:
     """One listener: feed it datagrams and acks with their arrival time; send what it returns."""
 
-    def __init__(self, track, config: ListenerConfig | None = None, filt=None) -> None:
+    def __init__(self, track, config: ListenerConfig | None = None, filt=None, start_epoch: int = 0) -> None:
+        """``start_epoch``: the authenticated output link's first epoch counter (the daemon passes the
+        wall-clock second at start, so a restarted listener never reuses an (epoch, SEQ) pair)."""
         self.cfg = config or ListenerConfig()
         if filt is None:
             from sfa.filter import TrackFilter
@@ -108,6 +112,7 @@ class Pipeline:
         )
         self.clock = StrobeClock(self.cfg.clock)
         self.link = ObcuLink(self.cfg.link, encoder=self._encode_estimate)
+        self.auth = LinkAuth.from_config(self.cfg.auth, start_epoch) if self.cfg.auth.enabled else None
         self._undated: deque[_Arrived] = deque()
         self._heap: list[tuple[float, int, Any]] = []
         self._order = 0
@@ -132,6 +137,13 @@ class Pipeline:
         if self.stopped:
             self.counters["after_stop"] += 1
             return []
+        if self.auth is not None:
+            try:
+                data = self.auth.open_input(data, addr)
+            except AuthError as exc:
+                self.counters["rejected"] += 1
+                self.rejected[str(exc.reason)] += 1
+                return self._drain(now)
         try:
             msg = self._decode(data)
         except DecodeError as exc:
@@ -152,6 +164,12 @@ class Pipeline:
 
     def receive_ack(self, data: bytes, now: float) -> list[bytes]:
         """A datagram from the OBCU (an ACK, or garbage that is counted)."""
+        if self.auth is not None:
+            try:
+                data = self.auth.open_ack(data)
+            except AuthError:
+                self.link.bad_acks += 1
+                return self.link.handle_timer(now)
         self.link.receive_ack(data, now)
         return self.link.handle_timer(now)
 
@@ -276,6 +294,10 @@ class Pipeline:
     def _encode_estimate(self, seq: int, est) -> bytes:
         if self.on_output is not None:
             self.on_output(seq, est)
+        payload = self._encode_plain(seq, est)
+        return payload if self.auth is None else self.auth.seal_output(payload, seq)
+
+    def _encode_plain(self, seq: int, est) -> bytes:
         if self.cfg.link.extended:
             return encode_output_extended(
                 OutputExtended(
@@ -332,6 +354,7 @@ class Pipeline:
                 "undated_pending": len(self._undated),
             },
             "merge": {"pending": len(self._heap)},
+            "auth": None if self.auth is None else self.auth.stats(),
             "filter": {
                 "outcomes": {
                     k[len("outcome_") :]: v

@@ -1,0 +1,91 @@
+"""The listener's authenticated links: keys per link and direction, replay state, epoch counters.
+
+Wraps :mod:`listener.auth` (the pure wire functions) for the pipeline. One master key (a file, hex)
+gives three link keys, ``derive_link_key(master, name)``:
+
+- ``modules->listener:<id>``: INPUT datagrams of interface module ``id`` (0..255, carried in the
+  KEY_ID byte). Each module has its own key, so the KEY_ID is an authenticated sender identity and the
+  anti-replay window is kept per module id, not per source address: a datagram captured from one
+  module and re-sent from another (spoofed) address is still checked against its own module's window;
+- ``listener->obcu``: OUTPUT datagrams, wrapped with the listener's epoch counter (advanced at each SEQ
+  wrap, started from the wall-clock second at start so a restart never reuses an (epoch, SEQ) pair);
+  a retransmission is the same wrapped datagram;
+- ``obcu->listener``: ACKs, verified with their own anti-replay window (a repeated ack of the same
+  SEQ is rejected as a replay and changes nothing).
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+from listener.auth import (
+    AuthConfig,
+    AuthState,
+    EpochCounter,
+    derive_link_key,
+    output_seq,
+    unwrap,
+    wrap,
+)
+from listener.config import AuthSettings, read_master_key
+
+LINK_INPUT = "modules->listener"
+LINK_OUTPUT = "listener->obcu"
+LINK_ACK = "obcu->listener"
+
+
+def input_key(master_key: bytes, module_id: int) -> bytes:
+    """The key interface module ``module_id`` (0..255, sent as KEY_ID) wraps its INPUT datagrams with."""
+    return derive_link_key(master_key, f"{LINK_INPUT}:{module_id}")
+
+
+class LinkAuth:
+    """Keys and state of the listener's three authenticated directions."""
+
+    def __init__(
+        self, master_key: bytes, tag_bytes: int = 16, window: int = 1024, start_epoch: int = 0
+    ) -> None:
+        self.tag_bytes = tag_bytes
+        self._master = master_key
+        self._input_keys: dict[int, bytes] = {}
+        self.key_output = derive_link_key(master_key, LINK_OUTPUT)
+        self.key_ack = derive_link_key(master_key, LINK_ACK)
+        cfg = AuthConfig(tag_bytes=tag_bytes, window=window)
+        self.input_state = AuthState(cfg)
+        self.ack_state = AuthState(cfg)
+        self.output_epoch = EpochCounter(start_epoch)
+
+    @classmethod
+    def from_config(cls, settings: AuthSettings, start_epoch: int = 0) -> LinkAuth:
+        return cls(read_master_key(settings.key_file), settings.tag_bytes, settings.window, start_epoch)
+
+    def input_key(self, module_id: int) -> bytes:
+        """The INPUT link key of interface module ``module_id`` (what that module wraps with)."""
+        key = self._input_keys.get(module_id)
+        if key is None:
+            key = self._input_keys[module_id] = input_key(self._master, module_id)
+        return key
+
+    def open_input(self, datagram: bytes, sender: Any) -> bytes:
+        """The INPUT payload of an authentic, fresh datagram; raises AuthError otherwise.
+
+        ``sender`` (the source address) is not trusted: the replay window is the module id's.
+        """
+        module_id = datagram[1] if len(datagram) > 1 else 0
+        return unwrap(datagram, {module_id: self.input_key(module_id)}, self.input_state, module_id)
+
+    def open_ack(self, datagram: bytes) -> bytes:
+        """The ACK payload of an authentic, fresh datagram; raises AuthError otherwise."""
+        return unwrap(datagram, self.key_ack, self.ack_state, "obcu", seq_of=output_seq)
+
+    def seal_output(self, payload: bytes, seq: int) -> bytes:
+        return wrap(payload, self.key_output, self.output_epoch.epoch_for(seq), tag_bytes=self.tag_bytes)
+
+    def stats(self) -> dict[str, Any]:
+        return {
+            "input_accepted": self.input_state.accepted,
+            "input_rejected": dict(sorted(self.input_state.rejected.items())),
+            "ack_accepted": self.ack_state.accepted,
+            "ack_rejected": dict(sorted(self.ack_state.rejected.items())),
+            "output_epoch": self.output_epoch.epoch,
+        }
