@@ -14,15 +14,15 @@ from sfa.errors import FilterConfigError
 #: curvature-model error for simulated data whose yaw rate follows the database's own smoothed
 #: curvature (what remains is the filter's 4 m linear resampling of it) [1/m]. Tracks digitised from
 #: maps need more: the FilterConfig default is 1.5e-3 1/m.
-#: This is an *effective per-sample* value: the curvature-model error is a function of position
+#: This is an *effective per-sample* value, and the cause of the over-confidence on the regional
+#: scenarios (docs/filter.md, Results): the curvature-model error is a function of position
 #: (correlated over metres of track), but the gyro update treats each 100 Hz sample as independent,
-#: so a per-sample sigma equal to the true model error over-counts the map-matching information by the
-#: number of samples per correlation length and makes sigma_s over-confident at every speed (measured
-#: on regional-tunnel / regional-long with 2.5e-4: coverage 78 % / 70.6 %, 3 seeds; without the gyro
-#: update 100 %). 5e-4 was chosen by measuring the 95 % interval coverage (docs/filter.md, Results):
-#: regional-tunnel 97.7 % (20 seeds); 6e-4 gives 98.0 % on regional-tunnel seeds 0-2 (97.7 % -> ~99 %) while
-#: regional-long (another track) would need ~6.5e-4: the error is a property of each track's geometry.
-CURVATURE_MODEL_INV_M = 5.0e-4
+#: so it over-counts the map-matching information on the arc length at every speed (without the gyro
+#: update the regional coverage is 100 %). No single constant fits all tracks (measured, per-message
+#: benchmark): 5e-4 brings regional-tunnel to 97.7 % (20 seeds) and regional-long to 88.7 % (3 seeds)
+#: but pushes tram-urban to 98.9 % and standstill-creep to 99.8 % (20 seeds); the value stays at
+#: 2.5e-4 until the kernel models the error as correlated along the track.
+CURVATURE_MODEL_INV_M = 2.5e-4
 
 
 def filter_config_for(
