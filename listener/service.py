@@ -180,7 +180,8 @@ class ListenerService:
         if warm_up:
             t0 = time.perf_counter()
             self.pipeline.filter.warm_up()
-            self.log.info("warm_up", seconds=round(time.perf_counter() - t0, 3))
+            lines = self.pipeline.filter.preload_lines()
+            self.log.info("warm_up", seconds=round(time.perf_counter() - t0, 3), lines=lines)
         for sig in (signal.SIGTERM, signal.SIGINT):
             try:
                 loop.add_signal_handler(sig, self._finish, signal.Signals(sig).name)

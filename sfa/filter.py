@@ -382,6 +382,13 @@ class TrackFilter:
             h.cnt[counter] += n
 
     # ------------------------------------------------------------------ lines and junctions
+    def preload_lines(self) -> int:
+        """Load every line of the database now (the daemon calls this before READY, so memory stays
+        flat and no junction pays a load while the train runs); returns the number of lines."""
+        for info in self._track.lines():
+            self._line_arrays(info.line_id)
+        return len(self._lines)
+
     def _line_arrays(self, line_id: int | None) -> TrackArrays:
         key = self._track.default_line_id if line_id is None else int(line_id)
         arr = self._lines.get(key)
