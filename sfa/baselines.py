@@ -9,7 +9,8 @@
   *without* track-aware GNSS handling. State [s, v, b_a, k_o]; the IMU drives the prediction exactly
   as in the SFA filter (f_x - b_a - g sin(theta)); the odometer updates v (1 + k_o) with its sigma;
   each GNSS fix is first projected onto the line (near the predicted position) and used as a scalar
-  arc-length measurement with the receiver's reported sigma_h. No GNSS error state, no lateral handling, no gating, no integrity.
+  arc-length measurement with the receiver's reported sigma_h. No GNSS error state, no lateral
+  handling, no gating, no integrity.
 
 Each returns a ``BaselineResult`` with one row per input measurement (the estimate after it).
 """
