@@ -275,7 +275,8 @@ class Pipeline:
         if not math.isfinite(est.epoch_s) or not math.isfinite(est.arc_length_m):
             return []
         sensor_now = self.clock.to_sensor_time(now)
-        if sensor_now is not None and est.epoch_s < sensor_now - self.cfg.link.max_output_age_s:
+        stale_before = self.cfg.link.max_output_age_s + self.cfg.merge.hold_s  # the hold is intended
+        if sensor_now is not None and est.epoch_s < sensor_now - stale_before:
             # behind by more than the freshness bound (a backlog): never sent as a fresh estimate
             self.counters["stale_not_sent"] += 1
             return []

@@ -175,6 +175,19 @@ def _send(lport: int, dgrams, speed: float, hostile_every: int = 0) -> tuple[int
     return sent, junk
 
 
+def _wait_quiet(csv_path: Path, quiet_s: float = 1.0, timeout_s: float = 20.0) -> None:
+    """Wait (bounded) until the OBCU's CSV has not grown for ``quiet_s``."""
+    end = time.monotonic() + timeout_s
+    size, since = -1, time.monotonic()
+    while time.monotonic() < end:
+        now_size = csv_path.stat().st_size if csv_path.exists() else 0
+        if now_size != size:
+            size, since = now_size, time.monotonic()
+        elif time.monotonic() - since >= quiet_s:
+            return
+        time.sleep(0.1)
+
+
 def _events(path: Path) -> list[dict]:
     out = []
     for line in path.read_text().splitlines():
@@ -199,6 +212,7 @@ def test_end_to_end_stop_counters_accuracy_notify(world, tmp_path):
         sent, junk = _send(lport, dgrams, speed=8.0, hostile_every=50)
         assert listener.wait(timeout=60) == 0  # STOP ends it cleanly
         notify.drain()
+        _wait_quiet(obcu_csv)  # the OBCU has read everything the listener sent before it stops
         obcu.send_signal(signal.SIGTERM)
         assert obcu.wait(timeout=30) == 0
     finally:
@@ -214,7 +228,7 @@ def test_end_to_end_stop_counters_accuracy_notify(world, tmp_path):
     assert exit_ev["input"]["processed"] == len(world["run"].measurements)
     assert exit_ev["sequencing"]["lost"] == 0 and exit_ev["sequencing"]["late"] == 0
     rows = _obcu_rows(obcu_csv)
-    assert len(rows) == exit_ev["link"]["outputs"] + exit_ev["link"]["retransmits"]
+    assert len(rows) == exit_ev["link"]["outputs"] + exit_ev["link"]["retransmits"]  # no output lost
     assert {r["size"] for r in rows} == {"18"}
     seqs = [int(r["seq"]) for r in rows]
     assert seqs[0] == 65500 and 0 in seqs
