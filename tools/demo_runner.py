@@ -17,6 +17,7 @@ import numpy as np
 
 from tools.accuracy import accuracy, along_track_errors
 from tools.errors import ToolError
+from tools.processes import terminate
 
 READY_TIMEOUT_S = 180.0  #: longest wait for the listener's READY (numba compiles on a cold cache)
 
@@ -94,19 +95,6 @@ def _read_obcu_csv(path: Path) -> dict[str, np.ndarray]:
             except (KeyError, ValueError):
                 continue  # a partially written last line while the OBCU is running
     return {k: np.array(v) for k, v in cols.items()}
-
-
-def _terminate(procs: list[subprocess.Popen]) -> None:
-    for p in procs:
-        if p.poll() is None:
-            p.terminate()
-    deadline = time.monotonic() + 10.0
-    for p in procs:
-        try:
-            p.wait(timeout=max(0.1, deadline - time.monotonic()))
-        except subprocess.TimeoutExpired:
-            p.kill()
-            p.wait(timeout=5.0)
 
 
 def run_demo(opts: DemoOptions) -> int:
@@ -235,7 +223,7 @@ def run_demo(opts: DemoOptions) -> int:
         listener_rc = listener.returncode
         obcu.wait(timeout=30.0)
     finally:
-        _terminate(procs)
+        terminate(procs)
     lst_log.join(timeout=5.0)
     obcu_log.join(timeout=5.0)
 

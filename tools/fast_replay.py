@@ -120,6 +120,7 @@ class _Prefix:
 
     def record(self, outputs, now) -> None:
         from listener.codec import decode_output
+        from tools.replay import estimate_row
 
         for payload in outputs:
             msg = decode_output(payload[:18])
@@ -130,23 +131,7 @@ class _Prefix:
                 retransmit = 0
             else:
                 retransmit = 1
-            self.est_rows.append(
-                (
-                    msg.epoch,
-                    msg.arc_length,
-                    msg.seq,
-                    retransmit,
-                    now,
-                    est.speed_mps,
-                    est.sigma_s_m,
-                    est.interval_low_m,
-                    est.interval_high_m,
-                    int(est.status),
-                    -1 if est.line_id is None else est.line_id,
-                    est.lat_deg,
-                    est.lon_deg,
-                )
-            )
+            self.est_rows.append(estimate_row(msg, est, retransmit, now))
 
     def feed(self, t, addr, payload, gps) -> None:
         pipe = self.pipe

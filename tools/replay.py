@@ -144,23 +144,7 @@ def replay_datagrams(
                 retransmit = 1
             if est is None:  # pragma: no cover - every output passes through the encoder
                 raise ToolError(f"output SEQ {msg.seq} was not recorded")
-            est_rows.append(
-                (
-                    msg.epoch,
-                    msg.arc_length,
-                    msg.seq,
-                    retransmit,
-                    now,
-                    est.speed_mps,
-                    est.sigma_s_m,
-                    est.interval_low_m,
-                    est.interval_high_m,
-                    int(est.status),
-                    -1 if est.line_id is None else est.line_id,
-                    est.lat_deg,
-                    est.lon_deg,
-                )
-            )
+            est_rows.append(estimate_row(msg, est, retransmit, now))
 
     n = 0
     skipped = 0
@@ -225,6 +209,25 @@ def replay_datagrams(
         datagrams=n,
         skipped_sensor=skipped,
         measurements=measurements,
+    )
+
+
+def estimate_row(msg, est, retransmit: int, now: float) -> tuple:
+    """One ``ESTIMATE_COLUMNS`` row: the output datagram ``msg``, the estimate it carries, and when."""
+    return (
+        msg.epoch,
+        msg.arc_length,
+        msg.seq,
+        retransmit,
+        now,
+        est.speed_mps,
+        est.sigma_s_m,
+        est.interval_low_m,
+        est.interval_high_m,
+        int(est.status),
+        -1 if est.line_id is None else est.line_id,
+        est.lat_deg,
+        est.lon_deg,
     )
 
 

@@ -31,6 +31,7 @@ from tools.faults.errors import CampaignError, ModeUnsupported
 from tools.faults.evaluate import Observation
 from tools.faults.spec import ScenarioSpec
 from tools.faults.tomlwrite import dumps
+from tools.processes import terminate
 
 READY_TIMEOUT_S = 300.0  #: longest wait for the listener's READY (numba compiles on a cold cache) [s]
 
@@ -132,19 +133,6 @@ def fresh_mask(seq: np.ndarray) -> np.ndarray:
             newest = int(s)
             mask[i] = True
     return mask
-
-
-def _terminate(procs: list[subprocess.Popen]) -> None:
-    for p in procs:
-        if p.poll() is None:
-            p.terminate()
-    deadline = time.monotonic() + 10.0
-    for p in procs:
-        try:
-            p.wait(timeout=max(0.1, deadline - time.monotonic()))
-        except subprocess.TimeoutExpired:
-            p.kill()
-            p.wait(timeout=5.0)
 
 
 def run_live(spec: ScenarioSpec, out: Path) -> Observation:
@@ -254,7 +242,7 @@ def run_live(spec: ScenarioSpec, out: Path) -> Observation:
             (out / "netem.txt").write_text(" ".join(ns.netem) + "\n" + ns.qdisc_stats())
             notes.append(f"input link by netem: {' '.join(ns.netem)} (counters in netem.txt)")
     finally:
-        _terminate(procs)
+        terminate(procs)
         for r in readers.values():
             r.join(timeout=5.0)
         if ns:
