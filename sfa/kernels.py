@@ -56,6 +56,8 @@ from sfa.layout import (
     A_T_INIT,
     A_T_ODO,
     A_T_STATE,
+    A_WK_K,
+    A_WK_PHT,
     BA,
     BG,
     C_COV_REPAIR,
@@ -242,22 +244,30 @@ def slope_at(ts, arr, s):
 # ============================================================== covariance hygiene
 @njit(cache=True)
 def _cholesky_ok(P):
-    """True when P is numerically positive definite (a plain Cholesky succeeds)."""
+    """True when the symmetric P is numerically positive definite (a plain Cholesky succeeds).
+
+    Allocation-free: the factor's strict lower triangle is written into P's strict lower triangle
+    (the upper triangle holds the same values, P being symmetric) and restored from the upper triangle
+    afterwards; the diagonal of the factor is needed only within its own column."""
     n = P.shape[0]
-    L = np.zeros((n, n))
+    ok = True
     for j in range(n):
         d = P[j, j]
         for k in range(j):
-            d -= L[j, k] * L[j, k]
+            d -= P[j, k] * P[j, k]  # L[j,j]^2 = P[j,j] - sum_k L[j,k]^2
         if not (d > 0.0) or not math.isfinite(d):
-            return False
-        L[j, j] = math.sqrt(d)
+            ok = False
+            break
+        ljj = math.sqrt(d)
         for i in range(j + 1, n):
-            v = P[i, j]
+            v = P[j, i]
             for k in range(j):
-                v -= L[i, k] * L[j, k]
-            L[i, j] = v / L[j, j]
-    return True
+                v -= P[i, k] * P[j, k]  # L[i,j] = (P[i,j] - sum_k L[i,k] L[j,k]) / L[j,j]
+            P[i, j] = v / ljj
+    for i in range(n):
+        for j in range(i):
+            P[i, j] = P[j, i]
+    return ok
 
 
 @njit(cache=True)
@@ -361,53 +371,118 @@ def predict_to(x, P, aux, cnt, cfg, ts, tg, t):
     condition_cov(P, cfg, cnt)
 
 
-# ============================================================== generic update (1 or 2 rows)
+# ============================================================== updates (allocation-free)
+# A scalar measurement's Jacobian h has at most three nonzeros: (i0, h0), (i1, h1), (i2, h2); an index
+# < 0 is unused. P h' and the gain K go to the scratch slots of aux (A_WK_PHT, A_WK_K).
 @njit(cache=True)
-def innovation(P, H, R, y, m):
-    """Innovation covariance S = H P H' + R, its inverse, the NIS y' S^-1 y and log det S."""
-    Hm = np.ascontiguousarray(H[:m, :])
-    PHt = P @ Hm.T
-    Sm = Hm @ PHt
-    for i in range(m):
-        for j in range(m):
-            Sm[i, j] += R[i, j]
-    Si = np.zeros((m, m))
-    if m == 1:
-        det = Sm[0, 0]
-        Si[0, 0] = 1.0 / det
-    else:
-        det = Sm[0, 0] * Sm[1, 1] - Sm[0, 1] * Sm[1, 0]
-        Si[0, 0] = Sm[1, 1] / det
-        Si[1, 1] = Sm[0, 0] / det
-        Si[0, 1] = -Sm[0, 1] / det
-        Si[1, 0] = -Sm[1, 0] / det
-    nis = 0.0
-    for i in range(m):
-        for j in range(m):
-            nis += y[i] * Si[i, j] * y[j]
-    logdet = math.log(det) if det > 0.0 else 1e300
-    return PHt, Sm, Si, nis, logdet
+def innovation1(P, aux, i0, h0, i1, h1, i2, h2, r, y):
+    """Scalar innovation: P h' (into aux scratch), S = h P h' + r, NIS = y^2 / S. Returns (S, NIS)."""
+    for i in range(NX):
+        v = 0.0
+        if i0 >= 0:
+            v += P[i, i0] * h0
+        if i1 >= 0:
+            v += P[i, i1] * h1
+        if i2 >= 0:
+            v += P[i, i2] * h2
+        aux[A_WK_PHT + i] = v  # (P h')_i
+    sm = r  # S = h P h' + r
+    if i0 >= 0:
+        sm += h0 * aux[A_WK_PHT + i0]
+    if i1 >= 0:
+        sm += h1 * aux[A_WK_PHT + i1]
+    if i2 >= 0:
+        sm += h2 * aux[A_WK_PHT + i2]
+    return sm, y * y / sm  # NIS = y' S^-1 y
 
 
 @njit(cache=True)
-def apply_update(x, P, H, R, y, m, PHt, Si, cfg, cnt):
-    """K = P H' S^-1 ; x = x + K y ; Joseph form P = (I - K H) P (I - K H)' + K R K'.
+def apply_update1(x, P, aux, sm, y, cfg, cnt):
+    """Scalar update after ``innovation1``: K = P h' / S ; x = x + K y ; Joseph form
+    P = (I - K h) P (I - K h)' + K r K', expanded for the rank-one h as P - K (P h')' - (P h') K' + S K K'.
 
     The update is abandoned (state unchanged) if it would produce a non-finite value."""
-    Hm = np.ascontiguousarray(H[:m, :])
-    Rm = np.ascontiguousarray(R[:m, :m])
-    K = PHt @ Si
-    xn = x + K @ np.ascontiguousarray(y[:m])
-    IKH = np.eye(NX) - K @ Hm
-    Pn = IKH @ P @ IKH.T + K @ Rm @ K.T
     for i in range(NX):
-        if not math.isfinite(xn[i]):
+        k = aux[A_WK_PHT + i] / sm  # K = P h' S^-1
+        aux[A_WK_K + i] = k
+        if not math.isfinite(k) or not math.isfinite(x[i] + k * y):
             return False
+    for i in range(NX):  # check before writing: the update is all or nothing
+        ki, pi = aux[A_WK_K + i], aux[A_WK_PHT + i]
         for j in range(NX):
-            if not math.isfinite(Pn[i, j]):
+            kj, pj = aux[A_WK_K + j], aux[A_WK_PHT + j]
+            if not math.isfinite(P[i, j] - (ki * pj + pi * kj) + sm * (ki * kj)):
                 return False
-    x[:] = xn
-    P[:, :] = Pn
+    for i in range(NX):
+        x[i] += aux[A_WK_K + i] * y  # x = x + K y
+        ki, pi = aux[A_WK_K + i], aux[A_WK_PHT + i]
+        for j in range(NX):
+            kj, pj = aux[A_WK_K + j], aux[A_WK_PHT + j]
+            P[i, j] = P[i, j] - (ki * pj + pi * kj) + sm * (ki * kj)  # Joseph form, rank one
+    condition_cov(P, cfg, cnt)
+    return True
+
+
+@njit(cache=True)
+def innovation2(P, aux, H, R, y):
+    """Two-row innovation (GNSS): P H' (into aux scratch), S = H P H' + R, S^-1, NIS = y' S^-1 y and
+    log det S. Returns (s00, s01, s11, si00, si01, si11, nis, logdet)."""
+    for i in range(NX):
+        a = 0.0
+        b = 0.0
+        for k in range(NX):
+            a += P[i, k] * H[0, k]
+            b += P[i, k] * H[1, k]
+        aux[A_WK_PHT + i] = a  # (P H')_i0
+        aux[A_WK_PHT + NX + i] = b  # (P H')_i1
+    s00 = R[0, 0]
+    s01 = R[0, 1]
+    s11 = R[1, 1]
+    for k in range(NX):  # S = H P H' + R
+        s00 += H[0, k] * aux[A_WK_PHT + k]
+        s01 += H[0, k] * aux[A_WK_PHT + NX + k]
+        s11 += H[1, k] * aux[A_WK_PHT + NX + k]
+    det = s00 * s11 - s01 * s01
+    si00 = s11 / det  # S^-1 of the symmetric 2 x 2
+    si11 = s00 / det
+    si01 = -s01 / det
+    nis = y[0] * (si00 * y[0] + si01 * y[1]) + y[1] * (si01 * y[0] + si11 * y[1])  # y' S^-1 y
+    logdet = math.log(det) if det > 0.0 else 1e300
+    return s00, s01, s11, si00, si01, si11, nis, logdet
+
+
+@njit(cache=True)
+def apply_update2(x, P, aux, y, s00, s01, s11, si00, si01, si11, cfg, cnt):
+    """Two-row update after ``innovation2``: K = P H' S^-1 ; x = x + K y ; Joseph form
+    P = (I - K H) P (I - K H)' + K R K', expanded as P - K (P H')' - (P H') K' + K S K'.
+
+    The update is abandoned (state unchanged) if it would produce a non-finite value."""
+    for i in range(NX):
+        p0 = aux[A_WK_PHT + i]
+        p1 = aux[A_WK_PHT + NX + i]
+        k0 = p0 * si00 + p1 * si01  # K = P H' S^-1
+        k1 = p0 * si01 + p1 * si11
+        aux[A_WK_K + i] = k0
+        aux[A_WK_K + NX + i] = k1
+        if not (math.isfinite(k0) and math.isfinite(k1) and math.isfinite(x[i] + k0 * y[0] + k1 * y[1])):
+            return False
+    for rep in range(2):  # pass 0 checks, pass 1 writes: the update is all or nothing
+        for i in range(NX):
+            ki0, ki1 = aux[A_WK_K + i], aux[A_WK_K + NX + i]
+            pi0, pi1 = aux[A_WK_PHT + i], aux[A_WK_PHT + NX + i]
+            a0 = ki0 * s00 + ki1 * s01  # (K S)_i
+            a1 = ki0 * s01 + ki1 * s11
+            for j in range(NX):
+                kj0, kj1 = aux[A_WK_K + j], aux[A_WK_K + NX + j]
+                pj0, pj1 = aux[A_WK_PHT + j], aux[A_WK_PHT + NX + j]
+                v = P[i, j] - (ki0 * pj0 + ki1 * pj1) - (pi0 * kj0 + pi1 * kj1) + (a0 * kj0 + a1 * kj1)
+                if rep == 0:
+                    if not math.isfinite(v):
+                        return False
+                else:
+                    P[i, j] = v  # Joseph form: P - K (PH')' - (PH') K' + K S K'
+    for i in range(NX):
+        x[i] += aux[A_WK_K + i] * y[0] + aux[A_WK_K + NX + i] * y[1]  # x = x + K y
     condition_cov(P, cfg, cnt)
     return True
 
@@ -660,19 +735,14 @@ def step_imu(x, P, aux, cnt, mem, cfg, ts, tg, tk, t, fx, fy, fz, wx, wy, wz):
     aux[A_LAST_NIS_GYRO] = -1.0
     aux[A_GYRO_OK] = 0.0
     if cfg[K_USE_GYRO] != 0.0 and abs(x[V]) >= cfg[K_GYRO_MIN_SPEED]:
-        H = np.zeros((2, NX))
-        R = np.zeros((2, 2))
-        y = np.zeros(2)
         k = interp_at(ts, tk, x[S])
-        H[0, S] = x[V] * slope_at(ts, tk, x[S])  # d(v k(s))/ds
-        H[0, V] = k
-        H[0, BG] = 1.0
-        R[0, 0] = cfg[K_GYRO_SIGMA] ** 2 + (x[V] * cfg[K_CURV_SIGMA]) ** 2  # sensor + v * curvature error
-        y[0] = wz - (x[V] * k + x[BG])  # y = gz - (v k(s) + b_g)
-        PHt, Sm, Si, nis, logdet = innovation(P, H, R, y, 1)
+        h_s = x[V] * slope_at(ts, tk, x[S])  # d(v k(s))/ds
+        r = cfg[K_GYRO_SIGMA] ** 2 + (x[V] * cfg[K_CURV_SIGMA]) ** 2  # sensor + v * curvature error
+        y = wz - (x[V] * k + x[BG])  # y = gz - (v k(s) + b_g)
+        sm, nis = innovation1(P, aux, S, h_s, V, k, BG, 1.0, r, y)  # h = [v dk/ds, k, ..., 1 (b_g)]
         aux[A_LAST_NIS_GYRO] = nis
         if nis <= cfg[K_GATE_GYRO]:
-            apply_update(x, P, H, R, y, 1, PHt, Si, cfg, cnt)
+            apply_update1(x, P, aux, sm, y, cfg, cnt)
             cnt[C_GYRO_OK] += 1
             aux[A_GYRO_OK] = 1.0
         else:
@@ -698,15 +768,12 @@ def step_odo(x, P, aux, cnt, mem, cfg, ts, tg, t, speed, sigma):
     predict_to(x, P, aux, cnt, cfg, ts, tg, t)
     check_timeouts(aux, cnt, cfg, t)
     sig = max(sigma, cfg[K_ODO_SIGMA_MIN])
-    H = np.zeros((2, NX))
-    R = np.zeros((2, 2))
-    y = np.zeros(2)
     d = aux[A_DIR]
-    H[0, V] = d * (1.0 + x[KO])  # dh/dv
-    H[0, KO] = d * x[V]  # dh/dk_o
-    R[0, 0] = sig * sig + cfg[K_ODO_QUANT] ** 2 / 12.0  # sample sigma^2 + quantisation
-    y[0] = speed - d * x[V] * (1.0 + x[KO])  # y = z - d v (1 + k_o)
-    PHt, Sm, Si, nis, logdet = innovation(P, H, R, y, 1)
+    h_v = d * (1.0 + x[KO])  # dh/dv
+    h_ko = d * x[V]  # dh/dk_o
+    r = sig * sig + cfg[K_ODO_QUANT] ** 2 / 12.0  # sample sigma^2 + quantisation
+    y = speed - d * x[V] * (1.0 + x[KO])  # y = z - d v (1 + k_o)
+    sm, nis = innovation1(P, aux, V, h_v, KO, h_ko, -1, 0.0, r, y)
     aux[A_LAST_NIS_ODO] = nis
     imu_timely = (t - aux[A_T_IMU]) <= cfg[K_IMU_TIMEOUT]
     still = (
@@ -729,8 +796,8 @@ def step_odo(x, P, aux, cnt, mem, cfg, ts, tg, t, speed, sigma):
             rewind_imu_only(x, P, aux, cnt, cfg, ts, tg, mem)
         elif aux[A_SLIP] != 0.0 and t - aux[A_SLIP_T0] > cfg[K_SLIP_MAX_S]:
             # the odometer has disagreed for too long: trust it again, widening the speed variance
-            P[V, V] += y[0] * y[0]
-            PHt, Sm, Si, nis, logdet = innovation(P, H, R, y, 1)
+            P[V, V] += y * y
+            sm, nis = innovation1(P, aux, V, h_v, KO, h_ko, -1, 0.0, r, y)
             use = True
             aux[A_SLIP] = 0.0
             aux[A_SLIP_BAD] = 0.0
@@ -747,7 +814,7 @@ def step_odo(x, P, aux, cnt, mem, cfg, ts, tg, t, speed, sigma):
         aux[A_SLIP_BAD] = 0.0
         use = True
     if use:
-        if apply_update(x, P, H, R, y, 1, PHt, Si, cfg, cnt):
+        if apply_update1(x, P, aux, sm, y, cfg, cnt):
             cnt[C_ODO_OK] += 1
             aux[A_T_ODO] = t
             outcome = O_ACCEPTED
@@ -755,13 +822,10 @@ def step_odo(x, P, aux, cnt, mem, cfg, ts, tg, t, speed, sigma):
                 mem_rotate(x, P, aux, mem, cfg, t)
     if still:
         # zero-velocity pseudo-measurement: z = 0 = v + noise(zupt_sigma)
-        H[0, :] = 0.0
-        H[0, V] = 1.0
-        R[0, 0] = cfg[K_ZUPT_SIGMA] ** 2
-        y[0] = -x[V]
-        PHt, Sm, Si, nis, logdet = innovation(P, H, R, y, 1)
+        y = -x[V]
+        sm, nis = innovation1(P, aux, V, 1.0, -1, 0.0, -1, 0.0, cfg[K_ZUPT_SIGMA] ** 2, y)  # h = [0, 1, 0..]
         if nis <= cfg[K_GATE_ZUPT]:
-            if apply_update(x, P, H, R, y, 1, PHt, Si, cfg, cnt):
+            if apply_update1(x, P, aux, sm, y, cfg, cnt):
                 cnt[C_ZUPT] += 1
     return outcome
 
@@ -845,7 +909,7 @@ def step_gps(x, P, aux, cnt, cfg, ts, te, tn, tg, t, east, north, sigma_h, fix_q
         R[1, 1] += qa * un * un
         R[0, 1] += qa * ue * un
         R[1, 0] += qa * ue * un
-    PHt, Sm, Si, nis, logdet = innovation(P, H, R, y, 2)
+    s00, s01, s11, si00, si01, si11, nis, logdet = innovation2(P, aux, H, R, y)
     aux[A_LAST_NIS_GPS] = nis
     along = y[0] * ue + y[1] * un  # along-track component of the innovation [m]
     if t < aux[A_GPS_HOLD]:
@@ -867,8 +931,8 @@ def step_gps(x, P, aux, cnt, cfg, ts, te, tn, tg, t, east, north, sigma_h, fix_q
             # GNSS has been self-consistent and away from the estimate for long: the estimate is the
             # one that is wrong. Widen the arc-length variance by the residual and accept.
             P[S, S] += along * along + y[0] * y[0] + y[1] * y[1]
-            PHt, Sm, Si, nis, logdet = innovation(P, H, R, y, 2)
-            if apply_update(x, P, H, R, y, 2, PHt, Si, cfg, cnt):
+            s00, s01, s11, si00, si01, si11, nis, logdet = innovation2(P, aux, H, R, y)
+            if apply_update2(x, P, aux, y, s00, s01, s11, si00, si01, si11, cfg, cnt):
                 cnt[C_GPS_REACQ] += 1
                 aux[A_GPS_REJ] = 0.0
                 aux[A_STEP_FLAG] = 0.0
@@ -884,7 +948,7 @@ def step_gps(x, P, aux, cnt, cfg, ts, te, tn, tg, t, east, north, sigma_h, fix_q
             aux[A_REJ_MAXDEV] = 0.0
         return O_GATED
     # ramp detection: two-sided CUSUM of the normalised along-track innovation
-    s_along = ue * (Sm[0, 0] * ue + Sm[0, 1] * un) + un * (Sm[1, 0] * ue + Sm[1, 1] * un)
+    s_along = ue * (s00 * ue + s01 * un) + un * (s01 * ue + s11 * un)  # u' S u
     r = along / math.sqrt(s_along)
     k = cfg[K_CUSUM_K]
     aux[A_CUSUM_P] = max(0.0, aux[A_CUSUM_P] + r - k)
@@ -897,7 +961,7 @@ def step_gps(x, P, aux, cnt, cfg, ts, te, tn, tg, t, east, north, sigma_h, fix_q
         aux[A_CUSUM_N] = 0.0
         cnt[C_GPS_GATED] += 1
         return O_GATED
-    if not apply_update(x, P, H, R, y, 2, PHt, Si, cfg, cnt):
+    if not apply_update2(x, P, aux, y, s00, s01, s11, si00, si01, si11, cfg, cnt):
         cnt[C_GPS_BAD] += 1
         return O_INVALID
     aux[A_GPS_REJ] = 0.0

@@ -64,7 +64,11 @@ A_DIR = 32  #: sense of travel: +1 the train's forward is increasing arc length,
 A_FY = 33  #: held lateral specific force from the last IMU sample [m/s^2]
 A_LAST_NIS_GYRO = 34  #: last gyro normalised innovation squared (-1: no gyro update evaluated)
 A_GYRO_OK = 35  #: 1 when the last gyro update was applied
-NAUX = 36
+#: Scratch for the updates (no meaning between calls): P H' (two columns of NX) and the gain K (two
+#: columns of NX). Kept in aux so the compiled updates allocate nothing per measurement.
+A_WK_PHT = 36
+A_WK_K = A_WK_PHT + 2 * NX
+NAUX = A_WK_K + 2 * NX
 
 # ---------------------------------------------------------------- counters cnt (int64[NCNT])
 C_IMU_OK = 0

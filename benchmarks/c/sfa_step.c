@@ -173,89 +173,111 @@ static void predict_to(double *x, double *P, double *aux, long *cnt, const doubl
     condition_cov(P, cfg, cnt);
 }
 
-/* ------------------------------------------------------------------ generic update (1 or 2 rows) */
+/* ------------------------------------------------------------------ updates (as sfa/kernels.py) */
+/* scalar measurement: h has nonzeros h0, h1, h2 at i0, i1, i2 (index < 0: unused) */
 typedef struct {
-    double PHt[NX * 2]; /* NX x m, row-major with stride 2 */
-    double Sm[4], Si[4];
-    double nis, logdet;
-} Innov;
+    double pht[NX], k[NX];
+    double sm, nis;
+} Innov1;
 
-static void innovation(const double *P, const double *H, const double *R, const double *y, int m, Innov *o) {
-    for (int i = 0; i < NX; i++)
-        for (int r = 0; r < m; r++) {
-            double acc = 0.0;
-            for (int k = 0; k < NX; k++) acc += PIJ(P, i, k) * H[r * NX + k];
-            o->PHt[i * 2 + r] = acc;
-        }
-    for (int a = 0; a < m; a++)
-        for (int b = 0; b < m; b++) {
-            double acc = 0.0;
-            for (int k = 0; k < NX; k++) acc += H[a * NX + k] * o->PHt[k * 2 + b];
-            o->Sm[a * 2 + b] = acc + R[a * 2 + b];
-        }
-    double det;
-    if (m == 1) {
-        det = o->Sm[0];
-        o->Si[0] = 1.0 / det;
-    } else {
-        det = o->Sm[0] * o->Sm[3] - o->Sm[1] * o->Sm[2];
-        o->Si[0] = o->Sm[3] / det;
-        o->Si[3] = o->Sm[0] / det;
-        o->Si[1] = -o->Sm[1] / det;
-        o->Si[2] = -o->Sm[2] / det;
+static void innovation1(const double *P, int i0, double h0, int i1, double h1, int i2, double h2, double r,
+                        double y, Innov1 *o) {
+    for (int i = 0; i < NX; i++) {
+        double v = 0.0;
+        if (i0 >= 0) v += PIJ(P, i, i0) * h0;
+        if (i1 >= 0) v += PIJ(P, i, i1) * h1;
+        if (i2 >= 0) v += PIJ(P, i, i2) * h2;
+        o->pht[i] = v;
     }
-    double nis = 0.0;
-    for (int a = 0; a < m; a++)
-        for (int b = 0; b < m; b++) nis += y[a] * o->Si[a * 2 + b] * y[b];
-    o->nis = nis;
-    o->logdet = det > 0.0 ? log(det) : 1e300;
+    double sm = r;
+    if (i0 >= 0) sm += h0 * o->pht[i0];
+    if (i1 >= 0) sm += h1 * o->pht[i1];
+    if (i2 >= 0) sm += h2 * o->pht[i2];
+    o->sm = sm;
+    o->nis = y * y / sm;
 }
 
-static int apply_update(double *x, double *P, const double *H, const double *R, const double *y, int m,
-                        const Innov *in, const double *cfg, long *cnt) {
-    double K[NX * 2], xn[NX], IKH[NX * NX], T[NX * NX], Pn[NX * NX];
-    for (int i = 0; i < NX; i++)
-        for (int b = 0; b < m; b++) {
-            double acc = 0.0;
-            for (int a = 0; a < m; a++) acc += in->PHt[i * 2 + a] * in->Si[a * 2 + b];
-            K[i * 2 + b] = acc;
-        }
+static int apply_update1(double *x, double *P, Innov1 *in, double y, const double *cfg, long *cnt) {
+    double sm = in->sm;
     for (int i = 0; i < NX; i++) {
-        double acc = 0.0;
-        for (int a = 0; a < m; a++) acc += K[i * 2 + a] * y[a];
-        xn[i] = x[i] + acc;
+        double k = in->pht[i] / sm;
+        in->k[i] = k;
+        if (!isfinite(k) || !isfinite(x[i] + k * y)) return 0;
     }
     for (int i = 0; i < NX; i++)
         for (int j = 0; j < NX; j++) {
-            double acc = 0.0;
-            for (int a = 0; a < m; a++) acc += K[i * 2 + a] * H[a * NX + j];
-            IKH[i * NX + j] = (i == j ? 1.0 : 0.0) - acc;
+            double ki = in->k[i], pi = in->pht[i], kj = in->k[j], pj = in->pht[j];
+            if (!isfinite(PIJ(P, i, j) - (ki * pj + pi * kj) + sm * (ki * kj))) return 0;
         }
-    for (int i = 0; i < NX; i++) /* T = IKH P */
+    for (int i = 0; i < NX; i++) {
+        x[i] += in->k[i] * y;
+        double ki = in->k[i], pi = in->pht[i];
         for (int j = 0; j < NX; j++) {
-            double acc = 0.0;
-            for (int k = 0; k < NX; k++) acc += IKH[i * NX + k] * PIJ(P, k, j);
-            T[i * NX + j] = acc;
+            double kj = in->k[j], pj = in->pht[j];
+            PIJ(P, i, j) = PIJ(P, i, j) - (ki * pj + pi * kj) + sm * (ki * kj);
         }
-    for (int i = 0; i < NX; i++) /* Pn = T IKH' + K R K' */
-        for (int j = 0; j < NX; j++) {
-            double acc = 0.0;
-            for (int k = 0; k < NX; k++) acc += T[i * NX + k] * IKH[j * NX + k];
-            double krk = 0.0;
-            for (int a = 0; a < m; a++) {
-                double kr = 0.0;
-                for (int b = 0; b < m; b++) kr += K[i * 2 + b] * R[b * 2 + a];
-                krk += kr * K[j * 2 + a];
+    }
+    condition_cov(P, cfg, cnt);
+    return 1;
+}
+
+/* two rows (GNSS): H is 2 x NX row-major, R 2 x 2 */
+typedef struct {
+    double pht0[NX], pht1[NX], k0[NX], k1[NX];
+    double s00, s01, s11, si00, si01, si11, nis;
+} Innov2;
+
+static void innovation2(const double *P, const double *H, const double *R, const double *y, Innov2 *o) {
+    for (int i = 0; i < NX; i++) {
+        double a = 0.0, b = 0.0;
+        for (int k = 0; k < NX; k++) {
+            a += PIJ(P, i, k) * H[k];
+            b += PIJ(P, i, k) * H[NX + k];
+        }
+        o->pht0[i] = a;
+        o->pht1[i] = b;
+    }
+    double s00 = R[0], s01 = R[1], s11 = R[3];
+    for (int k = 0; k < NX; k++) {
+        s00 += H[k] * o->pht0[k];
+        s01 += H[k] * o->pht1[k];
+        s11 += H[NX + k] * o->pht1[k];
+    }
+    double det = s00 * s11 - s01 * s01;
+    o->s00 = s00;
+    o->s01 = s01;
+    o->s11 = s11;
+    o->si00 = s11 / det;
+    o->si11 = s00 / det;
+    o->si01 = -s01 / det;
+    o->nis = y[0] * (o->si00 * y[0] + o->si01 * y[1]) + y[1] * (o->si01 * y[0] + o->si11 * y[1]);
+}
+
+static int apply_update2(double *x, double *P, Innov2 *in, const double *y, const double *cfg, long *cnt) {
+    for (int i = 0; i < NX; i++) {
+        double p0 = in->pht0[i], p1 = in->pht1[i];
+        double k0 = p0 * in->si00 + p1 * in->si01;
+        double k1 = p0 * in->si01 + p1 * in->si11;
+        in->k0[i] = k0;
+        in->k1[i] = k1;
+        if (!(isfinite(k0) && isfinite(k1) && isfinite(x[i] + k0 * y[0] + k1 * y[1]))) return 0;
+    }
+    for (int rep = 0; rep < 2; rep++)
+        for (int i = 0; i < NX; i++) {
+            double ki0 = in->k0[i], ki1 = in->k1[i], pi0 = in->pht0[i], pi1 = in->pht1[i];
+            double a0 = ki0 * in->s00 + ki1 * in->s01;
+            double a1 = ki0 * in->s01 + ki1 * in->s11;
+            for (int j = 0; j < NX; j++) {
+                double kj0 = in->k0[j], kj1 = in->k1[j], pj0 = in->pht0[j], pj1 = in->pht1[j];
+                double v = PIJ(P, i, j) - (ki0 * pj0 + ki1 * pj1) - (pi0 * kj0 + pi1 * kj1) + (a0 * kj0 + a1 * kj1);
+                if (rep == 0) {
+                    if (!isfinite(v)) return 0;
+                } else {
+                    PIJ(P, i, j) = v;
+                }
             }
-            Pn[i * NX + j] = acc + krk;
         }
-    for (int i = 0; i < NX; i++) {
-        if (!isfinite(xn[i])) return 0;
-        for (int j = 0; j < NX; j++)
-            if (!isfinite(Pn[i * NX + j])) return 0;
-    }
-    memcpy(x, xn, sizeof xn);
-    memcpy(P, Pn, sizeof Pn);
+    for (int i = 0; i < NX; i++) x[i] += in->k0[i] * y[0] + in->k1[i] * y[1];
     condition_cov(P, cfg, cnt);
     return 1;
 }
@@ -466,18 +488,15 @@ static long step_imu(double *x, double *P, double *aux, long *cnt, double *mem, 
     aux[A_LAST_NIS_GYRO] = -1.0;
     aux[A_GYRO_OK] = 0.0;
     if (cfg[K_USE_GYRO] != 0.0 && fabs(x[V]) >= cfg[K_GYRO_MIN_SPEED]) {
-        double H[2 * NX] = {0}, R[4] = {0}, y[2] = {0};
-        Innov in;
+        Innov1 in;
         double k = interp_at(ts, tk, nv, x[S]);
-        H[S] = x[V] * slope_at(ts, tk, nv, x[S]);
-        H[V] = k;
-        H[BG] = 1.0;
-        R[0] = pow(cfg[K_GYRO_SIGMA], 2) + pow(x[V] * cfg[K_CURV_SIGMA], 2); /* sensor + v * curvature error */
-        y[0] = wz - (x[V] * k + x[BG]);
-        innovation(P, H, R, y, 1, &in);
+        double h_s = x[V] * slope_at(ts, tk, nv, x[S]);
+        double r = pow(cfg[K_GYRO_SIGMA], 2) + pow(x[V] * cfg[K_CURV_SIGMA], 2); /* sensor + v * curvature error */
+        double y = wz - (x[V] * k + x[BG]);
+        innovation1(P, S, h_s, V, k, BG, 1.0, r, y, &in);
         aux[A_LAST_NIS_GYRO] = in.nis;
         if (in.nis <= cfg[K_GATE_GYRO]) {
-            apply_update(x, P, H, R, y, 1, &in, cfg, cnt);
+            apply_update1(x, P, &in, y, cfg, cnt);
             cnt[C_GYRO_OK] += 1;
             aux[A_GYRO_OK] = 1.0;
         } else {
@@ -505,14 +524,12 @@ static long step_odo(double *x, double *P, double *aux, long *cnt, double *mem, 
     predict_to(x, P, aux, cnt, cfg, ts, tg, nv, t);
     check_timeouts(aux, cnt, cfg, t);
     double sig = sigma > cfg[K_ODO_SIGMA_MIN] ? sigma : cfg[K_ODO_SIGMA_MIN];
-    double H[2 * NX] = {0}, R[4] = {0}, y[2] = {0};
-    Innov in;
+    Innov1 in;
     double d = aux[A_DIR];
-    H[V] = d * (1.0 + x[KO]);
-    H[KO] = d * x[V];
-    R[0] = sig * sig + pow(cfg[K_ODO_QUANT], 2) / 12.0;
-    y[0] = speed - d * x[V] * (1.0 + x[KO]);
-    innovation(P, H, R, y, 1, &in);
+    double h_v = d * (1.0 + x[KO]), h_ko = d * x[V];
+    double r = sig * sig + pow(cfg[K_ODO_QUANT], 2) / 12.0;
+    double y = speed - d * x[V] * (1.0 + x[KO]);
+    innovation1(P, V, h_v, KO, h_ko, -1, 0.0, r, y, &in);
     double nis = in.nis;
     aux[A_LAST_NIS_ODO] = nis;
     int imu_timely = (t - aux[A_T_IMU]) <= cfg[K_IMU_TIMEOUT];
@@ -531,8 +548,8 @@ static long step_odo(double *x, double *P, double *aux, long *cnt, double *mem, 
             cnt[C_SLIP] += 1;
             rewind_imu_only(x, P, aux, cnt, cfg, ts, tg, nv, mem);
         } else if (aux[A_SLIP] != 0.0 && t - aux[A_SLIP_T0] > cfg[K_SLIP_MAX_S]) {
-            PIJ(P, V, V) += y[0] * y[0];
-            innovation(P, H, R, y, 1, &in);
+            PIJ(P, V, V) += y * y;
+            innovation1(P, V, h_v, KO, h_ko, -1, 0.0, r, y, &in);
             nis = in.nis;
             use = 1;
             aux[A_SLIP] = 0.0;
@@ -553,7 +570,7 @@ static long step_odo(double *x, double *P, double *aux, long *cnt, double *mem, 
         use = 1;
     }
     if (use) {
-        if (apply_update(x, P, H, R, y, 1, &in, cfg, cnt)) {
+        if (apply_update1(x, P, &in, y, cfg, cnt)) {
             cnt[C_ODO_OK] += 1;
             aux[A_T_ODO] = t;
             outcome = O_ACCEPTED;
@@ -562,13 +579,10 @@ static long step_odo(double *x, double *P, double *aux, long *cnt, double *mem, 
         }
     }
     if (still) {
-        memset(H, 0, sizeof(double) * NX); /* row 0 */
-        H[V] = 1.0;
-        R[0] = pow(cfg[K_ZUPT_SIGMA], 2);
-        y[0] = -x[V];
-        innovation(P, H, R, y, 1, &in);
+        double yz = -x[V];
+        innovation1(P, V, 1.0, -1, 0.0, -1, 0.0, pow(cfg[K_ZUPT_SIGMA], 2), yz, &in);
         if (in.nis <= cfg[K_GATE_ZUPT])
-            if (apply_update(x, P, H, R, y, 1, &in, cfg, cnt)) cnt[C_ZUPT] += 1;
+            if (apply_update1(x, P, &in, yz, cfg, cnt)) cnt[C_ZUPT] += 1;
     }
     return outcome;
 }
@@ -643,8 +657,8 @@ static long step_gps(double *x, double *P, double *aux, long *cnt, const double 
         R[1] += qa * ue * un;
         R[2] += qa * ue * un;
     }
-    Innov in;
-    innovation(P, H, R, y, 2, &in);
+    Innov2 in;
+    innovation2(P, H, R, y, &in);
     aux[A_LAST_NIS_GPS] = in.nis;
     double along = y[0] * ue + y[1] * un;
     if (t < aux[A_GPS_HOLD]) {
@@ -668,8 +682,8 @@ static long step_gps(double *x, double *P, double *aux, long *cnt, const double 
         }
         if (t - aux[A_T_FIRST_GPS_REJ] >= cfg[K_REACQ_S] && aux[A_REJ_MAXDEV] <= cfg[K_REACQ_CONSIST_M]) {
             PIJ(P, S, S) += along * along + y[0] * y[0] + y[1] * y[1];
-            innovation(P, H, R, y, 2, &in);
-            if (apply_update(x, P, H, R, y, 2, &in, cfg, cnt)) {
+            innovation2(P, H, R, y, &in);
+            if (apply_update2(x, P, &in, y, cfg, cnt)) {
                 cnt[C_GPS_REACQ] += 1;
                 aux[A_GPS_REJ] = 0.0;
                 aux[A_STEP_FLAG] = 0.0;
@@ -686,7 +700,7 @@ static long step_gps(double *x, double *P, double *aux, long *cnt, const double 
         }
         return O_GATED;
     }
-    double s_along = ue * (in.Sm[0] * ue + in.Sm[1] * un) + un * (in.Sm[2] * ue + in.Sm[3] * un);
+    double s_along = ue * (in.s00 * ue + in.s01 * un) + un * (in.s01 * ue + in.s11 * un);
     double r = along / sqrt(s_along);
     double kk = cfg[K_CUSUM_K];
     double cp = aux[A_CUSUM_P] + r - kk, cn = aux[A_CUSUM_N] - r - kk;
@@ -701,7 +715,7 @@ static long step_gps(double *x, double *P, double *aux, long *cnt, const double 
         cnt[C_GPS_GATED] += 1;
         return O_GATED;
     }
-    if (!apply_update(x, P, H, R, y, 2, &in, cfg, cnt)) {
+    if (!apply_update2(x, P, &in, y, cfg, cnt)) {
         cnt[C_GPS_BAD] += 1;
         return O_INVALID;
     }
