@@ -19,7 +19,10 @@ from __future__ import annotations
 from typing import Any
 
 from listener.auth import (
+    HEADER_BYTES,
+    MAGIC,
     AuthConfig,
+    AuthReason,
     AuthState,
     EpochCounter,
     derive_link_key,
@@ -54,6 +57,7 @@ class LinkAuth:
         self.input_state = AuthState(cfg)
         self.ack_state = AuthState(cfg)
         self.output_epoch = EpochCounter(start_epoch)
+        self._input_min_bytes = HEADER_BYTES + 3 + tag_bytes  # header, INPUT SEQ, tag: unwrap's bound
 
     @classmethod
     def from_config(cls, settings: AuthSettings, start_epoch: int = 0) -> LinkAuth:
@@ -74,6 +78,23 @@ class LinkAuth:
         module_id = datagram[1] if len(datagram) > 1 else 0
         return unwrap(datagram, {module_id: self.input_key(module_id)}, self.input_state, module_id)
 
+    def precheck_input(self, buf: bytes | bytearray, n: int) -> str | None:
+        """The checks :meth:`open_input` makes before the HMAC, on ``buf[:n]``: the reason (counted, as
+        ``unwrap`` counts it) if the datagram is too short or its first byte is not MAGIC, else None.
+
+        For the service's batched reader: a flood of garbage is rejected without a copy or a tag.
+        """
+        if n < self._input_min_bytes:
+            reason = AuthReason.SHORT
+        elif buf[0] != MAGIC:
+            reason = AuthReason.MAGIC
+        else:
+            return None
+        rejected = self.input_state.rejected
+        label = str(reason)
+        rejected[label] = rejected.get(label, 0) + 1
+        return label
+
     def open_ack(self, datagram: bytes) -> bytes:
         """The ACK payload of an authentic, fresh datagram; raises AuthError otherwise."""
         return unwrap(datagram, self.key_ack, self.ack_state, "obcu", seq_of=output_seq)
@@ -89,3 +110,30 @@ class LinkAuth:
             "ack_rejected": dict(sorted(self.ack_state.rejected.items())),
             "output_epoch": self.output_epoch.epoch,
         }
+
+
+def main(argv: list[str] | None = None) -> int:
+    """``python -m listener.auth_link MASTER_KEY_FILE KEY_ID``: print interface module KEY_ID's key (hex).
+
+    A deployment gives each interface module only its own key (``sfa sim --live --auth-module-key
+    NAME=KEY_ID:FILE``), never the master key, which would let it pose as any module, the listener or
+    the OBCU.
+    """
+    import sys
+
+    from listener.errors import ConfigError
+
+    args = sys.argv[1:] if argv is None else argv
+    if len(args) != 2 or not args[1].isdigit() or not 0 <= int(args[1]) <= 255:
+        print("usage: python -m listener.auth_link MASTER_KEY_FILE KEY_ID (0..255)", file=sys.stderr)
+        return 2
+    try:
+        print(input_key(read_master_key(args[0]), int(args[1])).hex())
+    except ConfigError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

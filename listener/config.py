@@ -33,7 +33,14 @@ class InputConfig:
     #: with it, the first releases depend on exact arrival timing, so a replay could differ from the
     #: live run in its first estimates; without it a reordered very first pair loses one datagram (late)
     startup_hold: bool = False
-    receive_buffer_bytes: int = 4 * 1024 * 1024  #: SO_RCVBUF requested for the input socket [bytes]
+    #: SO_RCVBUF requested for the input socket [bytes]; as root SO_RCVBUFFORCE lifts the kernel's
+    #: net.core.rmem_max cap; the size the kernel granted is logged at READY
+    receive_buffer_bytes: int = 4 * 1024 * 1024
+    #: how the input socket is read: "batched" (a non-blocking socket drained by loop.add_reader, up to
+    #: batch_datagrams per wake-up, cheap header checks before the decode) or "protocol" (an asyncio
+    #: DatagramProtocol, one callback per datagram: the earlier reader, kept for comparison)
+    reader: str = "batched"
+    batch_datagrams: int = 256  #: datagrams read per wake-up at most before the loop runs timers [count]
 
 
 @dataclass(frozen=True)
@@ -174,6 +181,8 @@ def _validate(cfg: ListenerConfig) -> None:
     need(cfg.input.max_pending >= 1, "input.max_pending", "must be >= 1")
     need(cfg.input.max_streams >= 1, "input.max_streams", "must be >= 1")
     need(cfg.input.receive_buffer_bytes >= 65536, "input.receive_buffer_bytes", "must be >= 65536")
+    need(cfg.input.reader in ("batched", "protocol"), "input.reader", "must be batched or protocol")
+    need(1 <= cfg.input.batch_datagrams <= 65536, "input.batch_datagrams", "must be in 1..65536")
     need(cfg.clock.window_strobes >= 1, "clock.window_strobes", "must be >= 1")
     need(cfg.clock.max_pending_undated >= 0, "clock.max_pending_undated", "must be >= 0")
     need(cfg.clock.max_step_s > 0.0, "clock.max_step_s", "must be > 0")

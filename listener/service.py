@@ -2,20 +2,83 @@
 
 It only moves bytes and time: every decision is the pipeline core's (:mod:`listener.pipeline`).
 ``now`` is the event loop's monotonic clock. uvloop is used when installed.
+
+The input socket is read in batches (``input.reader = "batched"``, the default): the socket is
+non-blocking, ``loop.add_reader`` wakes the service when it is readable, and each wake-up drains up
+to ``input.batch_datagrams`` datagrams with ``sock.recvfrom_into`` into one preallocated 64 KiB
+buffer (Python's socket module has no ``recvmmsg``, so each datagram is still one system call, but
+no Python object is made for a datagram that is rejected). Before a datagram is copied and handed to
+the pipeline, :func:`early_reject_reason` checks what the codec would check first (length, SENSOR_TYPE,
+the (N_INT, N_DOUBLE) form and the length it implies) and, with authenticated links, the length and
+MAGIC byte (:meth:`listener.auth_link.LinkAuth.precheck_input`), before any HMAC. A datagram that
+fails there is counted in the pipeline's counters under exactly the reason the pipeline would have
+given it (``input.received``, ``input.rejected``, ``input.rejected_by_reason``) and goes no further;
+the service counts them too (``service.early_rejected``). Timers are re-armed once per batch.
+``input.reader = "protocol"`` keeps the earlier reader (an asyncio ``DatagramProtocol``, one callback
+per datagram, every datagram through ``Pipeline.receive``) for comparison: ``benchmarks/bench_flood.py``.
 """
 
 from __future__ import annotations
 
 import asyncio
+import os
 import signal
 import socket
 import time
 from typing import Any
 
+from listener.codec import HEADER_SIZE, INPUT_FORMS, RejectReason, SensorType
 from listener.config import ListenerConfig
 from listener.jsonlog import JsonLogger
 from listener.pipeline import Pipeline
 from listener.sdnotify import Notifier, watchdog_interval_s
+
+#: receive buffer of the batched reader: larger than any UDP payload, so nothing is ever cut
+RECV_BUFFER_BYTES = 65536
+SO_RCVBUFFORCE = getattr(socket, "SO_RCVBUFFORCE", 33)  #: Linux; not exported by Python 3.11
+
+_FORM_SIZES: dict[int, int] = {
+    int(t) << 16 | n_int << 8 | n_double: HEADER_SIZE + 4 * n_int + 8 * n_double
+    for t, n_int, n_double in INPUT_FORMS
+}  # header key (type, N_INT, N_DOUBLE) -> the only valid datagram length
+_TYPES = frozenset(int(t) for t in SensorType)
+_SHORT, _TYPE, _LENGTH, _FORM = (
+    str(r) for r in (RejectReason.SHORT, RejectReason.TYPE, RejectReason.LENGTH, RejectReason.FORM)
+)
+
+
+def early_reject_reason(buf: bytes | bytearray, n: int) -> str | None:
+    """The codec's reject reason for the datagram ``buf[:n]`` if its header or length rules it out, else None.
+
+    The same checks, in the same order, as :func:`listener.codec.decode_input` makes before it looks at
+    a field (SHORT, TYPE, LENGTH, FORM), so a datagram rejected here is counted under the reason the
+    pipeline would have given it; None means it may be valid (the full decode still checks the values).
+    """
+    if n < HEADER_SIZE:
+        return _SHORT
+    t, n_int, n_double = buf[0], buf[3], buf[4]
+    if _FORM_SIZES.get(t << 16 | n_int << 8 | n_double) == n:
+        return None
+    if t not in _TYPES:
+        return _TYPE
+    if n != HEADER_SIZE + 4 * n_int + 8 * n_double:
+        return _LENGTH
+    return _FORM
+
+
+def kernel_drops(sock: socket.socket) -> int | None:
+    """Datagrams the kernel dropped for ``sock`` (receive buffer full), from /proc; None where unreadable."""
+    try:
+        inode = str(os.fstat(sock.fileno()).st_ino)
+        name = "udp6" if sock.family == socket.AF_INET6 else "udp"
+        with open(f"/proc/self/net/{name}") as fh:
+            for line in fh:
+                fields = line.split()
+                if len(fields) > 12 and fields[9] == inode:
+                    return int(fields[-1])
+    except (OSError, ValueError):
+        return None
+    return None
 
 
 class _InputProtocol(asyncio.DatagramProtocol):
@@ -57,9 +120,19 @@ class ListenerService:
             level=config.log.level, warning_interval_s=config.log.warning_interval_s
         )
         self.notifier = notifier or Notifier()
-        self.counters: dict[str, int] = {"input_socket_errors": 0, "obcu_socket_errors": 0, "send_errors": 0}
+        self.counters: dict[str, int] = {
+            "input_socket_errors": 0,
+            "obcu_socket_errors": 0,
+            "send_errors": 0,
+            "early_rejected": 0,
+        }
         self._loop: asyncio.AbstractEventLoop | None = None
         self._in: asyncio.DatagramTransport | None = None
+        self._sock: socket.socket | None = None  # the input socket (both readers)
+        self._reading = False  # the batched reader is registered with the loop
+        self._buf = bytearray(RECV_BUFFER_BYTES)
+        self._view = memoryview(self._buf)
+        self.receive_buffer_granted: int | None = None  # SO_RCVBUF as the kernel set it [bytes]
         self._out: asyncio.DatagramTransport | None = None
         self._timer: asyncio.TimerHandle | None = None
         self._timer_at: float | None = None
@@ -75,6 +148,42 @@ class ListenerService:
         self._send(self.pipeline.receive(data, addr, self._loop.time()))
         if self.pipeline.stopped:
             self._finish("stop datagram")
+        self._rearm()
+
+    def _on_readable(self) -> None:
+        """The batched reader: drain up to ``input.batch_datagrams`` datagrams from the input socket."""
+        loop, sock, buf, view = self._loop, self._sock, self._buf, self._view
+        assert loop is not None and sock is not None
+        pipeline = self.pipeline
+        auth = pipeline.auth
+        now = loop.time()
+        drain = False  # a rejection was the last thing the pipeline saw: it drains the merge at `now`
+        for _ in range(self.cfg.input.batch_datagrams):
+            try:
+                n, addr = sock.recvfrom_into(buf)
+            except (BlockingIOError, InterruptedError):
+                break
+            except OSError:
+                self.counters["input_socket_errors"] += 1
+                break
+            if not pipeline.stopped:
+                reason = early_reject_reason(buf, n) if auth is None else auth.precheck_input(buf, n)
+                if reason is not None:
+                    counters = pipeline.counters
+                    counters["received"] += 1
+                    counters["rejected"] += 1
+                    pipeline.rejected[reason] += 1
+                    self.counters["early_rejected"] += 1
+                    drain = True
+                    continue
+            self._send(pipeline.receive(bytes(view[:n]), addr, now))
+            drain = False
+            if pipeline.stopped:
+                self._finish("stop datagram")
+        if drain and not pipeline.stopped:
+            # Pipeline.receive ends every rejection with a drain of the merge at `now`; handle_timer
+            # does that drain (and only runs timers already due), once per batch instead of per datagram
+            self._send(pipeline.handle_timer(now))
         self._rearm()
 
     def on_ack(self, data: bytes) -> None:
@@ -155,7 +264,27 @@ class ListenerService:
     def metrics(self) -> dict[str, Any]:
         m = self.pipeline.metrics()
         m["service"] = dict(self.counters)
+        if self._sock is not None and self._sock.fileno() >= 0:
+            m["service"]["kernel_drops"] = kernel_drops(self._sock)
         return m
+
+    def _open_input_socket(self) -> socket.socket:
+        inp = self.cfg.input
+        family = socket.AF_INET6 if ":" in inp.bind else socket.AF_INET
+        sock = socket.socket(family, socket.SOCK_DGRAM)
+        for option in (SO_RCVBUFFORCE, socket.SO_RCVBUF):  # FORCE: root may exceed net.core.rmem_max
+            try:
+                sock.setsockopt(socket.SOL_SOCKET, option, inp.receive_buffer_bytes)
+                break
+            except OSError:
+                continue
+        try:  # Linux reports twice the size asked for (its bookkeeping overhead)
+            self.receive_buffer_granted = sock.getsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF)
+        except OSError:  # pragma: no cover
+            self.receive_buffer_granted = None
+        sock.bind((inp.bind, inp.port))
+        sock.setblocking(False)
+        return sock
 
     async def run(self, warm_up: bool = True) -> int:
         """Bind, warm up, notify READY, serve until STOP or a signal; 0 on a clean exit."""
@@ -163,16 +292,10 @@ class ListenerService:
         self._loop = loop
         self._done = asyncio.Event()
         inp = self.cfg.input
-        family = socket.AF_INET6 if ":" in inp.bind else socket.AF_INET
-        sock = socket.socket(family, socket.SOCK_DGRAM)
-        try:
-            sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, inp.receive_buffer_bytes)
-        except OSError:
-            pass
-        sock.bind((inp.bind, inp.port))
-        sock.setblocking(False)
-        self._in, _ = await loop.create_datagram_endpoint(lambda: _InputProtocol(self), sock=sock)
+        sock = self._sock = self._open_input_socket()
         self.bound_port = sock.getsockname()[1]
+        if inp.reader == "protocol":
+            self._in, _ = await loop.create_datagram_endpoint(lambda: _InputProtocol(self), sock=sock)
         link = self.cfg.link
         self._out, _ = await loop.create_datagram_endpoint(
             lambda: _ObcuProtocol(self), remote_addr=(link.obcu_host, link.obcu_port)
@@ -187,6 +310,9 @@ class ListenerService:
                 loop.add_signal_handler(sig, self._finish, signal.Signals(sig).name)
             except (NotImplementedError, RuntimeError):  # pragma: no cover - non-main thread / Windows
                 pass
+        if inp.reader == "batched":  # after the warm-up, as the protocol reader's datagrams wait for it
+            loop.add_reader(sock.fileno(), self._on_readable)
+            self._reading = True
         tasks = [asyncio.ensure_future(self._periodic_metrics())]
         wd = watchdog_interval_s()
         if wd is not None:
@@ -197,6 +323,8 @@ class ListenerService:
             bind=inp.bind,
             obcu=f"{link.obcu_host}:{link.obcu_port}",
             watchdog_s=wd,
+            reader=inp.reader,
+            receive_buffer_bytes=self.receive_buffer_granted,
         )
         self.notifier.ready(f"listening on {inp.bind}:{self.bound_port}")
         try:
@@ -210,9 +338,14 @@ class ListenerService:
             if self._timer is not None:
                 self._timer.cancel()
             self.log.info("exit", reason=self._exit_reason, **self.metrics())
+            if self._reading:
+                loop.remove_reader(sock.fileno())
+                self._reading = False
             for transport in (self._in, self._out):
                 if transport is not None:
                     transport.close()
+            if self._in is None:
+                sock.close()
             for sig in (signal.SIGTERM, signal.SIGINT):
                 try:
                     loop.remove_signal_handler(sig)
