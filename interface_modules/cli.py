@@ -39,6 +39,27 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         action="store_true",
         help="live: bind ephemeral source ports instead of the scenario's",
     )
+    parser.add_argument(
+        "--auth-key-file",
+        metavar="FILE",
+        help="live: authenticated input link; FILE is the listener's auth.key_file (hex master key), each "
+        "module wraps with its own derived key modules->listener:<KEY_ID> (control 0, imu 1, odometer 2, "
+        "gps 3)",
+    )
+    parser.add_argument(
+        "--auth-module-key",
+        metavar="NAME=KEY_ID:FILE",
+        action="append",
+        default=[],
+        help="live: module NAME wraps with the key in FILE (hex, `python -m listener.auth_link MASTER "
+        "KEY_ID` prints it) and KEY_ID; repeat per module (takes precedence over --auth-key-file)",
+    )
+    parser.add_argument(
+        "--auth-tag-bytes",
+        type=int,
+        default=16,
+        help="live: tag length [bytes] (auth.tag_bytes)",
+    )
 
 
 def _target(text: str | None, default_port: int) -> tuple[str, int]:
@@ -83,6 +104,11 @@ def run(args: argparse.Namespace) -> int:
         raise SimError("--live sends datagrams; use an offline run for --pcap / --out-dir")
     if args.target and not args.live:
         raise SimError("--target is only used with --live")
+    authenticated = bool(args.auth_key_file or args.auth_module_key)
+    if authenticated and not args.live:
+        raise SimError("--auth-key-file / --auth-module-key are only used with --live")
+    if not 16 <= args.auth_tag_bytes <= 32:
+        raise SimError("--auth-tag-bytes must be in 16..32")
     sc = load_scenario(args.scenario)
     t0 = time.perf_counter()
     run_ = generate(sc, seed=args.seed, max_duration_s=args.duration)
@@ -95,12 +121,21 @@ def run(args: argparse.Namespace) -> int:
         file=sys.stderr,
     )
     if args.live:
-        from .live import run_live
+        from .live import module_auth, run_live
 
         target = _target(args.target, sc.network.listener_port)
+        auth = None
+        if authenticated:  # the epoch starts at the wall-clock second: a re-run never reuses (epoch, SEQ)
+            auth = module_auth(
+                list(run_.ports),
+                master_key_file=args.auth_key_file,
+                module_keys=args.auth_module_key,
+                start_epoch=int(time.time()),
+                tag_bytes=args.auth_tag_bytes,
+            )
         if args.truth:
             write_truth_csv(run_, args.truth)
-        report = run_live(run_, target, speed=args.speed, ephemeral_ports=args.ephemeral_ports)
+        report = run_live(run_, target, speed=args.speed, ephemeral_ports=args.ephemeral_ports, auth=auth)
         state = "interrupted, STOP sent" if report.interrupted else "complete"
         sent = ", ".join(f"{m} {n}" for m, n in sorted(report.sent.items()))
         print(

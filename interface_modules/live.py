@@ -6,6 +6,11 @@ included) against the shared monotonic clock, scaled by ``speed`` (2.0 = twice r
 OS adds its own scheduling jitter on top. Each module binds ``bind_host:port`` (its configured
 source port; 0 = ephemeral) before the start, so a port in use fails cleanly before anything is sent.
 
+Authenticated links (the listener's ``[auth]`` extension, docs/protocol.md): with a key per module
+(:class:`ModuleAuth`), each module process wraps every datagram it sends, its STOP included, with
+``listener.auth.wrap`` under its own key and KEY_ID and its own epoch counter (started from the
+wall-clock second, so a restarted run never reuses an (epoch, SEQ) pair the listener accepted).
+
 Stopping: at the end of the schedule the control module sends its STOP; on ``stop()`` (the CLI
 calls it on Ctrl-C) every module stops sending at once and the control module sends a STOP with its
 next sequence number. Shutdown is bounded: processes that do not exit within ``JOIN_GRACE_S`` are
@@ -27,6 +32,21 @@ READY_TIMEOUT_S = 20.0  #: time allowed for the module processes to start and bi
 JOIN_GRACE_S = 5.0  #: time allowed for the processes to finish after the schedule ends or a stop [s]
 
 
+#: KEY_ID of each module on an authenticated input link (the listener derives the key
+#: ``modules->listener:<KEY_ID>``): the SENSOR_TYPE a module sends, 0 for the control module
+DEFAULT_KEY_IDS = {"control": 0, "imu": 1, "odometer": 2, "gps": 3}
+
+
+@dataclass(frozen=True)
+class ModuleAuth:
+    """How one module wraps its datagrams on an authenticated input link."""
+
+    key: bytes  #: the module's link key (``listener.auth_link.input_key(master, key_id)``), >= 16 bytes
+    key_id: int  #: KEY_ID byte, 0..255: the id the listener derives this module's key from
+    start_epoch: int = 0  #: first epoch counter (the CLI passes the wall-clock second)
+    tag_bytes: int = 16  #: tag length [bytes], as the listener's auth.tag_bytes
+
+
 @dataclass(frozen=True)
 class ModuleSchedule:
     """What one module process sends: offsets [s of simulated time from the start] and payloads."""
@@ -37,6 +57,7 @@ class ModuleSchedule:
     payloads: tuple[bytes, ...]
     is_control: bool = False
     next_seq_after: tuple[int, ...] = ()  #: control: sequence number following each datagram (for STOP)
+    auth: ModuleAuth | None = None  #: wrap every datagram for an authenticated input link
 
 
 @dataclass(frozen=True)
@@ -48,9 +69,20 @@ class LiveReport:
     wall_s: float  #: wall time from the first scheduled send to the end [s]
 
 
-def schedules_from_run(run, *, ephemeral_ports: bool = False) -> list[ModuleSchedule]:
-    """Per-module send schedules from an offline run (times relative to the earliest send)."""
+def schedules_from_run(
+    run, *, ephemeral_ports: bool = False, auth: dict[str, ModuleAuth] | None = None
+) -> list[ModuleSchedule]:
+    """Per-module send schedules from an offline run (times relative to the earliest send).
+
+    ``auth``: module name -> :class:`ModuleAuth`; every module of the run needs one (the listener
+    rejects an unwrapped datagram on an authenticated link).
+    """
     from listener.codec import decode_header
+
+    if auth is not None:
+        missing = sorted(set(run.ports) - set(auth))
+        if missing:
+            raise SimError(f"authenticated link: no key for module(s) {', '.join(missing)}")
 
     t0 = min(p.send_s for p in run.packets)
     out = []
@@ -66,9 +98,25 @@ def schedules_from_run(run, *, ephemeral_ports: bool = False) -> list[ModuleSche
                 payloads=tuple(p.payload for p in pkts),
                 is_control=name == "control",
                 next_seq_after=next_seq,
+                auth=None if auth is None else auth[name],
             )
         )
     return out
+
+
+def _sealer(auth: ModuleAuth | None):
+    """The module's wrap function for an authenticated link (own epoch counter), or None."""
+    if auth is None:
+        return None
+    from listener.auth import EpochCounter, input_seq, wrap
+
+    counter = EpochCounter(auth.start_epoch)
+
+    def seal(payload: bytes) -> bytes:
+        epoch = counter.epoch_for(input_seq(payload))
+        return wrap(payload, auth.key, epoch, key_id=auth.key_id, tag_bytes=auth.tag_bytes)
+
+    return seal
 
 
 def _module_main(
@@ -95,6 +143,7 @@ def _module_main(
         ready.put((sched.name, None))
         if not go.wait(READY_TIMEOUT_S + 5.0) or stop.is_set():
             return
+        seal = _sealer(sched.auth)
         t0 = start.value
         next_seq = (sched.next_seq_after[0] - 1) % 65536 if sched.next_seq_after else 0
         completed = True
@@ -103,14 +152,15 @@ def _module_main(
             if (remaining > 0 and stop.wait(remaining)) or stop.is_set():
                 completed = False
                 break
-            sock.sendto(payload, target)
+            sock.sendto(payload if seal is None else seal(payload), target)
             sent += 1
             if sched.is_control:
                 next_seq = sched.next_seq_after[i]
         if sched.is_control and not completed:
             from listener.codec import Stop, encode_input
 
-            sock.sendto(encode_input(Stop(next_seq)), target)
+            stop_dgram = encode_input(Stop(next_seq))
+            sock.sendto(stop_dgram if seal is None else seal(stop_dgram), target)
             sent += 1
         sock.close()
     finally:
@@ -223,10 +273,16 @@ def run_live(
     speed: float = 1.0,
     bind_host: str = "127.0.0.1",
     ephemeral_ports: bool = False,
+    auth: dict[str, ModuleAuth] | None = None,
 ) -> LiveReport:
-    """Send the run live; Ctrl-C (KeyboardInterrupt) stops it cleanly with a STOP."""
+    """Send the run live; Ctrl-C (KeyboardInterrupt) stops it cleanly with a STOP.
+
+    ``auth``: per-module keys for an authenticated input link (see :class:`ModuleAuth`)."""
     runner = LiveRunner(
-        schedules_from_run(run, ephemeral_ports=ephemeral_ports), target, speed=speed, bind_host=bind_host
+        schedules_from_run(run, ephemeral_ports=ephemeral_ports, auth=auth),
+        target,
+        speed=speed,
+        bind_host=bind_host,
     )
     interrupted = False
     t_first = runner.start()
@@ -237,3 +293,58 @@ def run_live(
         runner.stop()
     sent = runner.join()
     return LiveReport(sent=sent, interrupted=interrupted, wall_s=max(time.monotonic() - t_first, 0.0))
+
+
+def _read_hex_key(path: str, what: str) -> bytes:
+    from listener.config import read_master_key
+    from listener.errors import ConfigError
+
+    try:
+        return read_master_key(path)
+    except ConfigError as exc:
+        raise SimError(f"{what}: {str(exc).split(': ', 1)[-1]}") from None
+
+
+def module_auth(
+    modules: list[str],
+    *,
+    master_key_file: str | None = None,
+    module_keys: list[str] = (),
+    start_epoch: int = 0,
+    tag_bytes: int = 16,
+) -> dict[str, ModuleAuth]:
+    """Per-module keys for ``modules`` from the CLI's options.
+
+    ``master_key_file``: the listener's ``auth.key_file`` (hex); each module's key is derived as the
+    listener derives it, ``modules->listener:<KEY_ID>`` with the ids of :data:`DEFAULT_KEY_IDS`.
+    ``module_keys``: ``NAME=KEY_ID:FILE`` items, a module's own key (hex file, what
+    ``python -m listener.auth_link MASTER_FILE KEY_ID`` prints) and id; they take precedence, so a
+    deployment gives each module only its own key, never the master.
+    """
+    from listener.auth_link import input_key
+
+    out: dict[str, ModuleAuth] = {}
+    if master_key_file:
+        master = _read_hex_key(master_key_file, f"--auth-key-file {master_key_file}")
+        for name in modules:
+            if name not in DEFAULT_KEY_IDS:
+                raise SimError(
+                    f"--auth-key-file: module {name!r} has no default KEY_ID; use --auth-module-key"
+                )
+            kid = DEFAULT_KEY_IDS[name]
+            out[name] = ModuleAuth(input_key(master, kid), kid, start_epoch, tag_bytes)
+    for item in module_keys:
+        name, sep, rest = item.partition("=")
+        kid_text, sep2, path = rest.partition(":")
+        if not sep or not sep2 or not name or not path:
+            raise SimError(f"--auth-module-key must be NAME=KEY_ID:FILE, not {item!r}")
+        if name not in modules:
+            raise SimError(f"--auth-module-key: no module {name!r} (modules: {', '.join(modules)})")
+        try:
+            kid = int(kid_text)
+        except ValueError:
+            raise SimError(f"--auth-module-key {item!r}: KEY_ID must be an integer") from None
+        if not 0 <= kid <= 255:
+            raise SimError(f"--auth-module-key {item!r}: KEY_ID must be in 0..255")
+        out[name] = ModuleAuth(_read_hex_key(path, f"--auth-module-key {name}"), kid, start_epoch, tag_bytes)
+    return out

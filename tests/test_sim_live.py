@@ -43,6 +43,12 @@ class Receiver:
         self.thread = threading.Thread(target=self._run, daemon=True)
         self.thread.start()
 
+    @staticmethod
+    def free_port() -> int:
+        with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+            s.bind(("127.0.0.1", 0))
+            return s.getsockname()[1]
+
     @property
     def address(self) -> tuple[str, int]:
         return self.sock.getsockname()
@@ -150,3 +156,102 @@ def test_live_and_offline_agree_on_a_shipped_scenario():
         live.setdefault(port, []).append(data)
     offline = sorted([p.payload for p in run.packets_of(m)] for m in run.ports)
     assert sorted(live.values()) == offline  # per sender: the same datagrams in the same order
+
+
+def _sent_total(stderr: str) -> int:
+    """Datagrams a `sfa sim --live` run reports as sent ("sent control 12, gps 30, ... to ...")."""
+    line = next(ln for ln in stderr.splitlines() if ln.startswith("live run"))
+    part = line.split(" sent ", 1)[1].split(" to ", 1)[0]
+    return sum(int(item.split()[-1]) for item in part.split(","))
+
+
+@pytest.mark.slow
+def test_authenticated_live_senders_against_sfa_listen(tmp_path):
+    """`sfa sim --live --auth-key-file` against `sfa listen` with auth on: every datagram accepted;
+    the same run with a wrong key is rejected at the tag, datagram for datagram (its STOP included)."""
+    import json
+    import subprocess
+    import sys
+
+    key, wrong = tmp_path / "master.hex", tmp_path / "wrong.hex"
+    key.write_text(bytes(range(32)).hex() + "\n")
+    wrong.write_text(bytes(range(1, 33)).hex() + "\n")
+    lport, oport = Receiver.free_port(), Receiver.free_port()
+    log = tmp_path / "listener.log"
+    obcu = subprocess.Popen(
+        [sys.executable, "-m", "sfa", "obcu", "--port", str(oport), "--quiet", "--auth-key-file", str(key)],
+        stderr=subprocess.DEVNULL,
+        stdout=subprocess.DEVNULL,
+    )
+    listener = subprocess.Popen(
+        [
+            sys.executable,
+            "-m",
+            "sfa",
+            "listen",
+            "--bind",
+            "127.0.0.1",
+            "--port",
+            str(lport),
+            "--obcu",
+            f"127.0.0.1:{oport}",
+            "--set",
+            "auth.enabled=true",
+            "--set",
+            f"auth.key_file={key}",
+        ],
+        stderr=open(log, "w"),  # noqa: SIM115
+        stdout=subprocess.DEVNULL,
+    )
+
+    def sim(key_file, duration: str) -> subprocess.CompletedProcess:
+        return subprocess.run(
+            [
+                sys.executable,
+                "-m",
+                "sfa",
+                "sim",
+                "tram-urban",
+                "--live",
+                "--target",
+                f"127.0.0.1:{lport}",
+                "--speed",
+                "8",
+                "--duration",
+                duration,
+                "--ephemeral-ports",
+                "--auth-key-file",
+                str(key_file),
+            ],
+            capture_output=True,
+            text=True,
+            timeout=120,
+        )
+
+    try:
+        end = time.monotonic() + 180
+        while '"event":"ready"' not in log.read_text():
+            assert listener.poll() is None, log.read_text()
+            assert time.monotonic() < end
+            time.sleep(0.05)
+        forged = sim(wrong, "4")  # its STOP is wrapped under the wrong key too: the listener keeps running
+        assert forged.returncode == 0, forged.stderr
+        assert listener.poll() is None
+        real = sim(key, "20")
+        assert real.returncode == 0, real.stderr
+        assert listener.wait(timeout=60) == 0  # the authenticated STOP ended it
+    finally:
+        for p in (listener, obcu):
+            if p.poll() is None:
+                p.kill()
+                p.wait(timeout=10)
+    exit_ev = [json.loads(ln) for ln in log.read_text().splitlines() if '"event":"exit"' in ln][-1]
+    n_forged, n_real = _sent_total(forged.stderr), _sent_total(real.stderr)
+    auth = exit_ev["auth"]
+    assert n_forged > 100 and n_real > 1000
+    assert auth["input_rejected"] == {"auth_tag": n_forged}
+    assert auth["input_accepted"] == n_real
+    assert exit_ev["input"]["received"] == n_forged + n_real
+    assert exit_ev["input"]["rejected_by_reason"] == {"auth_tag": n_forged}
+    assert exit_ev["sequencing"]["lost"] == 0
+    assert exit_ev["link"]["outputs"] > 1000 and exit_ev["link"]["acks"] > 0  # authenticated acks came back
