@@ -142,6 +142,11 @@ def test_authenticated_link_rejects_every_forged_replayed_and_flipped_datagram(t
     assert auth["rejected"]["auth_tag"] > 0 and auth["rejected"]["auth_replay"] > 0
     # every intact original once; a replayed copy of a corrupted original is its first intact copy
     assert ip["forwarded"] - ip["bitflipped"] <= auth["accepted"] <= ip["forwarded"]
+    # per-module keys as `sfa listen` uses them: each module its own KEY_ID, one replay window per KEY_ID
+    from interface_modules.live import DEFAULT_KEY_IDS
+
+    assert sorted(auth["modules"].values()) == sorted(DEFAULT_KEY_IDS.values())
+    assert auth["windows"] == sorted(DEFAULT_KEY_IDS.values())
 
 
 def test_campaign_tables_and_stall_guard(tmp_path):

@@ -72,7 +72,7 @@ def run_replay_path(
     obcu_config=None,
     seed: int = 0,
     tail_s: float = 10.0,
-    auth_key: bytes | None = None,
+    auth_master: bytes | None = None,
 ) -> Trace:
     """Run ``packets`` (``Packet(arrival_s, src_port, payload)``, sorted) through the whole system.
 
@@ -80,10 +80,15 @@ def run_replay_path(
     after the last datagram (or once the listener stopped and ``tail_s`` passed). An exception in any
     component ends the run; its traceback is in ``Trace.crash`` (the campaign counts it as a crash).
 
-    ``auth_key``: the input link is authenticated (:mod:`listener.auth`, the recommended integration):
-    each module wraps its datagrams (own epoch counter) before the link, the listener side unwraps
-    them before the pipeline. ``Trace.auth`` then says how many were accepted, rejected (by reason),
-    and ``bad``: accepted datagrams that are not an original, or an original accepted a second time.
+    ``auth_master``: the input link is authenticated with per-module keys, as ``sfa listen`` with
+    ``[auth]`` and ``sfa sim --live --auth-key-file`` do it: each module wraps its datagrams with its
+    own key ``modules->listener:<KEY_ID>`` (KEY_ID from ``interface_modules.live.DEFAULT_KEY_IDS``)
+    and its own epoch counter before the link; the listener side opens them with the listener's own
+    :class:`listener.auth_link.LinkAuth` (anti-replay window per module id) before the pipeline.
+    The attacker knows the format and the module ids, not the keys: forgeries are wrapped under a
+    random key with a real module's KEY_ID. ``Trace.auth`` then says how many were accepted, rejected
+    (by reason), and ``bad``: accepted datagrams that are not an original, or an original accepted a
+    second time.
     """
     from listener.obcu import MockObcu, ObcuConfig
     from listener.pipeline import Pipeline
@@ -108,24 +113,33 @@ def run_replay_path(
 
     originals: set[bytes] = set()
     accepted: set[bytes] = set()
-    auth_state = None
-    if auth_key is not None:
-        from listener.auth import AuthError, AuthState, EpochCounter, input_seq, unwrap, wrap
+    link_auth = None
+    key_ids: dict[int, int] = {}  # source port -> the module's KEY_ID
+    if auth_master is not None:
+        from interface_modules.live import DEFAULT_KEY_IDS
+        from listener.auth import AuthError, EpochCounter, input_seq, wrap
+        from listener.auth_link import LinkAuth
 
-        auth_state = AuthState()
+        link_auth = LinkAuth(auth_master)
         counters: dict[int, EpochCounter] = {}
         trace.auth = {"accepted": 0, "bad": 0, "rejected": {}}
     for p in packets:
         payload = p.payload
-        if auth_key is not None:
-            counter = counters.setdefault(int(p.src_port), EpochCounter())
-            payload = wrap(payload, auth_key, counter.epoch_for(input_seq(payload)))
+        if link_auth is not None:
+            port = int(p.src_port)
+            kid = key_ids.get(port)
+            if kid is None:  # a module without a default id (none in the shipped scenarios): 16, 17, ...
+                kid = key_ids[port] = DEFAULT_KEY_IDS.get(getattr(p, "module", ""), 16 + len(key_ids))
+            counter = counters.setdefault(port, EpochCounter())
+            epoch = counter.epoch_for(input_seq(payload))
+            payload = wrap(payload, link_auth.input_key(kid), epoch, key_id=kid)
             originals.add(payload)
         push(float(p.arrival_s), "sim", payload, ("127.0.0.1", int(p.src_port)))
+    module_ids = sorted(set(key_ids.values()))
 
     def authentic(data: bytes, addr: Any) -> bytes | None:
         try:
-            payload = unwrap(data, auth_key, auth_state, addr)
+            payload = link_auth.open_input(data, addr)
         except AuthError:
             return None
         if data not in originals or data in accepted:
@@ -139,8 +153,9 @@ def run_replay_path(
     def to_listener(emits) -> None:
         for t, data, sender in emits:
             if sender[0] == "forge":
-                if auth_key is not None:  # the attacker knows the format, not the key
-                    data = wrap(data, attacker_key, int(attacker_rng.integers(0, 2**32)))
+                if link_auth is not None:  # the attacker knows the format and the module ids, not the keys
+                    kid = module_ids[int(attacker_rng.integers(0, len(module_ids)))]
+                    data = wrap(data, attacker_key, int(attacker_rng.integers(0, 2**32)), key_id=kid)
                 push(t, "in", data, FAULT_SENDER_ADDR)
             else:
                 push(t, "in", data, sender)
@@ -193,7 +208,7 @@ def run_replay_path(
                     else:
                         to_listener(in_core.forward(data, addr, now))
                 elif kind == "in":
-                    if auth_state is not None:
+                    if link_auth is not None:
                         data = authentic(data, addr)
                     if data is not None:
                         outputs(pipe.receive(data, addr, now), now)
@@ -234,9 +249,11 @@ def run_replay_path(
     trace.metrics = pipe.metrics()
     trace.link_transitions = [(t - t0, s) for t, s in pipe.link.transitions]
     trace.input_proxy = in_core.stats() if in_core else {}
-    if auth_state is not None:
-        trace.auth["accepted"] = auth_state.accepted
-        trace.auth["rejected"] = dict(sorted(auth_state.rejected.items()))
+    if link_auth is not None:
+        trace.auth["accepted"] = link_auth.input_state.accepted
+        trace.auth["rejected"] = dict(sorted(link_auth.input_state.rejected.items()))
+        trace.auth["modules"] = {str(k): v for k, v in sorted(key_ids.items())}  # source port -> KEY_ID
+        trace.auth["windows"] = sorted(link_auth.input_state.windows)  # the listener's: per KEY_ID
     trace.output_proxy = out_core.stats() if out_core else {}
     st = obcu.stats
     trace.obcu_duplicates = st.duplicates

@@ -64,6 +64,11 @@ def output_outages(spec: ScenarioSpec) -> tuple[tuple[float, float], ...]:
     return (spec.output_link.blackouts if spec.output_link else ()) + spec.obcu.silent + spec.obcu.drop_acks
 
 
+def campaign_master_key(spec: ScenarioSpec) -> bytes:
+    """The master key of an authenticated row (fixed per row: the replay path stays deterministic)."""
+    return b"sfa-campaign-master-key:" + spec.name.encode()
+
+
 def run_replay(spec: ScenarioSpec, out_dir: Path) -> Observation:
     """The replay path: offline datagrams through the whole system on scripted time."""
     from interface_modules.offline import generate
@@ -81,15 +86,9 @@ def run_replay(spec: ScenarioSpec, out_dir: Path) -> Observation:
     obcu_cfg = ObcuConfig(drop_acks=spec.obcu.drop_acks, silent=spec.obcu.silent,
                           restart_at_s=spec.obcu.restart_at_s)
     with TrackDatabase.open(track_path) as track:
-        auth_key = None
-        if spec.auth:
-            from listener.auth import derive_link_key
-
-            master = b"sfa-campaign-master-key:" + spec.name.encode()
-            auth_key = derive_link_key(master, "modules->listener")
         trace = run_replay_path(sim.packets, track, cfg, input_link=spec.input_link,
                                 output_link=spec.output_link, obcu_config=obcu_cfg, seed=spec.seed,
-                                auth_key=auth_key)
+                                auth_master=campaign_master_key(spec) if spec.auth else None)
     t0 = trace.start_s
     fresh = trace.fresh
     arrival = np.array([f.arrival_s for f in fresh]) - t0
