@@ -17,13 +17,14 @@ import csv
 import html
 import json
 import os
+import time
 from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 from typing import Any
 
 from tools.faults.errors import CampaignError
-from tools.faults.runner import run_scenario, run_scenario_guarded
+from tools.faults.runner import run_scenario, run_scenario_guarded, wall_budget_s
 from tools.faults.spec import Campaign
 
 #: column order of the tables (a row may lack some: shown as "-")
@@ -86,11 +87,27 @@ def _run_dask(specs, mode, out: Path, scheduler: str | None, progress) -> dict[s
                             "(pip install 'dask[distributed]')") from exc
     if not scheduler:
         raise CampaignError("--executor dask needs --scheduler ADDRESS (an existing Dask scheduler)")
+    from dask.distributed import TimeoutError as DaskTimeout
+
     rows = {}
-    with Client(scheduler) as client:  # pragma: no cover - needs a cluster
-        futures = {s.name: client.submit(run_scenario, s, mode, str(out), pure=False) for s in specs}
-        for name, fut in futures.items():
-            rows[name] = fut.result()
+    with Client(scheduler) as client:
+        # run_scenario, not the guarded child process: Dask's worker processes are daemonic and may
+        # not start children. The wall-time budget is kept on the client side instead: a row past it
+        # is reported as stalled (a crash) and its task cancelled (a hung worker thread is not killed)
+        futures = {s.name: (s, client.submit(run_scenario, s, mode, str(out), pure=False)) for s in specs}
+        # rows queue behind each other on a small cluster: allow a row its budget once per wave
+        waves = -(-len(specs) // max(1, sum(client.nthreads().values())))
+        t0 = time.monotonic()
+        for name, (spec, fut) in futures.items():
+            budget = wall_budget_s(spec, mode)
+            try:
+                rows[name] = fut.result(timeout=max(0.0, t0 + budget * waves - time.monotonic()))
+            except (DaskTimeout, TimeoutError):
+                fut.cancel()
+                rows[name] = {"scenario": name, "mode": mode, "verdict": "FAIL", "crashes": 1,
+                              "checks": "crashes:FAIL", "wall_s": round(time.monotonic() - t0, 1),
+                              "notes": f"stalled: no result after {budget:.0f} s of wall time on the Dask "
+                                       "cluster (a hang counts as a crash)"}
             if progress:
                 progress(rows[name])
     return rows
