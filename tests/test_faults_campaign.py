@@ -4,7 +4,6 @@ the results tables, the stall guard, the live mode on real processes and the net
 from __future__ import annotations
 
 import csv
-import dataclasses
 import json
 import tomllib
 
@@ -220,7 +219,23 @@ def test_netns_mode_runs_or_skips_with_the_reason():
         ns.destroy()
 
 
-def test_unsupported_mode_rows_are_skipped(tmp_path):
-    spec = dataclasses.replace(campaign({"name": "a"}).scenarios[0], auth=True)
-    row = run_scenario(spec, "live", str(tmp_path))
-    assert row["verdict"] == "SKIP" and "replay path only" in row["notes"]
+def test_live_authenticated_row(tmp_path):
+    """auth = true live: sfa listen with [auth], sfa obcu and sfa sim --live with the row's key file."""
+    c = campaign(
+        {
+            "name": "live-auth",
+            "auth": True,
+            "speed": 10.0,
+            "input_link": {"bitflip": 0.02, "replay": 0.02, "garbage_rate_hz": 50.0, "inject_start_s": 2.0},
+            "expect": {"crashes": 0, "auth_bad": 0},
+        },
+        duration_s=20.0,
+    )
+    row = run_scenario(c.scenarios[0], "live", str(tmp_path))
+    assert row["verdict"] == "PASS", row
+    assert row["fresh_outputs"] > 100  # the authenticated stream got through, the outputs and acks too
+    trace = json.loads((tmp_path / "live-auth" / "live.json").read_text())
+    rejected = trace["metrics"]["input"]["rejected_by_reason"]
+    assert rejected["auth_tag"] > 0 and rejected["auth_replay"] > 0  # bit flips, replays
+    assert rejected.get("auth_magic", 0) + rejected.get("auth_short", 0) > 0  # unwrapped garbage
+    assert trace["metrics"]["link"]["acks"] > 0

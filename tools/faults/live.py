@@ -27,7 +27,7 @@ from pathlib import Path
 
 import numpy as np
 
-from tools.faults.errors import CampaignError, ModeUnsupported
+from tools.faults.errors import CampaignError
 from tools.faults.evaluate import Observation
 from tools.faults.spec import ScenarioSpec
 from tools.faults.tomlwrite import dumps
@@ -142,8 +142,6 @@ def run_live(spec: ScenarioSpec, out: Path) -> Observation:
     from tools.faults.netns import Namespace
     from tools.faults.runner import build_scenario, fault_windows, listener_config
 
-    if spec.auth:
-        raise ModeUnsupported("authenticated links are not wired into `sfa listen` yet: replay path only")
     sc = build_scenario(spec)
     track_path = database_path(sc)
     if track_path is None:
@@ -158,6 +156,14 @@ def run_live(spec: ScenarioSpec, out: Path) -> Observation:
         links["output_link"] = spec.output_link.as_dict()
     (out / "links.toml").write_text(dumps(links))
     _, overrides = listener_config(spec, sc, track_path)
+    auth_args: list[str] = []  # sfa obcu and sfa sim: the same master key file as the listener
+    if spec.auth:  # authenticated links on both sides of the listener, per-module input keys
+        from tools.faults.runner import campaign_master_key
+
+        key_file = out / "master.key"
+        key_file.write_text(campaign_master_key(spec).hex() + "\n")
+        overrides = [*overrides, "auth.enabled=true", f"auth.key_file={key_file}"]
+        auth_args = ["--auth-key-file", str(key_file)]
 
     ns = Namespace.create(spec) if spec.netns else None
     host = "127.0.0.1"
@@ -201,7 +207,8 @@ def run_live(spec: ScenarioSpec, out: Path) -> Observation:
                                   str(out / "obcu.csv"), "--quiet", "--idle-exit", "10",
                                   *_windows_args("--drop-acks", spec.obcu.drop_acks),
                                   *_windows_args("--silent", spec.obcu.silent),
-                                  *[a for t in spec.obcu.restart_at_s for a in ("--restart-at", str(t))]))
+                                  *[a for t in spec.obcu.restart_at_s for a in ("--restart-at", str(t))],
+                                  *auth_args))
         wait_ready("obcu", obcu, 60.0)
         t_obcu = time.monotonic()  # the OBCU's clock (CSV time_s, misbehaviour windows) starts about here
         target = f"{listen_host}:{listen_port}"
@@ -221,7 +228,7 @@ def run_live(spec: ScenarioSpec, out: Path) -> Observation:
         t_start = time.monotonic()
         simp = subprocess.Popen(
             _sfa("sim", str(scenario_file), "--live", "--target", target, "--speed", str(spec.speed),
-                 "--ephemeral-ports"),
+                 "--ephemeral-ports", *auth_args),
             stdout=subprocess.DEVNULL, stderr=open(out / "sim.log", "w"), env=env,  # noqa: SIM115
         )
         procs.append(simp)
@@ -314,6 +321,16 @@ def run_live(spec: ScenarioSpec, out: Path) -> Observation:
         reasons_seen=reasons, notes=notes,
         corruption=bool(spec.input_link and (spec.input_link.bitflip > 0 or spec.input_link.forge_on_stream)),
     )
+    if spec.auth:
+        # live, the accepted datagrams cannot be matched one by one against the originals (the replay
+        # path does that); the bound: no more accepted than the simulator sent through the proxy
+        auth = exit_ev.get("auth") or {}
+        originals = proxies["proxy_in"].get("received", 0) if "proxy_in" in readers else None
+        accepted = int(auth.get("input_accepted", 0))
+        obs.auth = {"accepted": accepted, "rejected": dict(auth.get("input_rejected", {})),
+                    "bad": max(0, accepted - originals) if originals is not None else 0}
+        notes.append("live auth_bad: accepted datagrams beyond the originals the simulator sent (a replay "
+                     "accepted in place of a lost original is not visible live; the replay path checks each)")
     (out / "live.json").write_text(json.dumps({"metrics": metrics, "proxies": proxies, "rss_mb": rss[-50:],
                                                "base_rss_mb": base_rss}, indent=1, default=str))
     return obs
