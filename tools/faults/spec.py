@@ -83,7 +83,7 @@ class ScenarioSpec:
     speed: float = 10.0  #: live: simulated seconds per wall second
     netns: bool = False  #: live: run the listener in a network namespace behind tc netem
     timeout_s: float | None = None  #: wall time before the run counts as stalled (None: from duration) [s]
-    auth: bool = False  #: authenticated links, per-module input keys (replay path and live); forgeries lack the keys
+    auth: bool = False  #: authenticated links with per-module input keys (replay path and live)
 
     def scenario_dict(self) -> dict[str, Any]:
         """The simulator scenario to run: the base with this row's faults and duration."""
