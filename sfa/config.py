@@ -32,7 +32,18 @@ class FilterConfig:
     use_gyro: bool = True  #: apply the gyro update gz = v curvature(s) + b_g (see docs/filter.md)
     gyro_sigma_radps: float = 0.005  #: gyro white noise and scale error per sample [rad/s]
     curvature_sigma_inv_m: float = 1.5e-3  #: curvature-model error of the database [1/m] (R += (v sigma)^2)
+    #: compensate the body roll in curves (cant) before the gyro update: the roll angle comes from the
+    #: accelerometer's lateral/vertical specific force against the expected (v^2 k(s), -g), and the yaw
+    #: rate about the vertical is gy sin(roll) + gz cos(roll) (see docs/filter.md) [-]
+    gyro_tilt_compensation: bool = True
     gyro_bias_rw_radps_rts: float = 2.0e-5  #: gyro bias random walk [rad/s/sqrt(s)]
+    init_sigma_gyro_scale: float = 0.005  #: initial gyro scale-factor sigma (state SG) [fraction]
+    #: gyro scale-factor random walk: lets SG follow what the roll compensation leaves of the cant from
+    #: curve to curve [1/sqrt(s)]
+    gyro_scale_rw_per_rts: float = 1.0e-4
+    #: initial sigma of the yaw gyro's roll-rate coupling (state MX: the z gyro's tilt towards x, which
+    #: makes it read MX times the roll rate while the cant ramps up or down in curve transitions) [rad]
+    init_sigma_gyro_roll_coupling_rad: float = 0.0175
     init_sigma_gyro_bias_radps: float = 0.0175  #: initial gyro bias sigma [rad/s]
     gyro_min_speed_mps: float = 2.0  #: smallest speed for the gyro update [m/s]
     # --- odometer
@@ -194,4 +205,8 @@ class FilterConfig:
         c[L.K_INIT_SIGMA_MY] = self.init_sigma_yaw_misalignment_rad
         c[L.K_INIT_SIGMA_SF] = self.init_sigma_accel_scale
         c[L.K_CURV_SIGMA] = self.curvature_sigma_inv_m
+        c[L.K_GYRO_TILT] = 1.0 if self.gyro_tilt_compensation else 0.0
+        c[L.K_INIT_SIGMA_SG] = self.init_sigma_gyro_scale
+        c[L.K_Q_SG] = self.gyro_scale_rw_per_rts ** 2
+        c[L.K_INIT_SIGMA_MX] = self.init_sigma_gyro_roll_coupling_rad
         return c

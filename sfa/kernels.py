@@ -110,13 +110,16 @@ from sfa.layout import (
     K_GRAVITY,
     K_GYRO_MIN_SPEED,
     K_GYRO_SIGMA,
+    K_GYRO_TILT,
     K_IMU_TIMEOUT,
     K_INIT_SIGMA_BA,
     K_INIT_SIGMA_BG,
     K_INIT_SIGMA_KO,
+    K_INIT_SIGMA_MX,
     K_INIT_SIGMA_MY,
     K_INIT_SIGMA_S,
     K_INIT_SIGMA_SF,
+    K_INIT_SIGMA_SG,
     K_INIT_SIGMA_V,
     K_LATE_TOL,
     K_LOST_SIGMA,
@@ -130,6 +133,7 @@ from sfa.layout import (
     K_Q_BG,
     K_Q_KO,
     K_Q_NO_IMU,
+    K_Q_SG,
     K_REACQ_CONSIST_M,
     K_REACQ_S,
     K_SLIP_CONFIRM_N,
@@ -149,6 +153,7 @@ from sfa.layout import (
     MEM_HH,
     MEM_HN,
     MEM_T_ROT,
+    MX,
     MY,
     NH,
     NX,
@@ -165,6 +170,7 @@ from sfa.layout import (
     R_SLIP,
     R_STANDSTILL,
     SF,
+    SG,
     SNAP,
     S,
     V,
@@ -350,6 +356,7 @@ def _predict_step(x, P, aux, cfg, ts, tg, h, imu_ok):
     P[GE, GE] += gm * gm * (1.0 - phi * phi)  # Gauss-Markov driving noise
     P[GN, GN] += gm * gm * (1.0 - phi * phi)
     P[BG, BG] += cfg[K_Q_BG] * h
+    P[SG, SG] += cfg[K_Q_SG] * h  # gyro scale random walk
 
 
 @njit(cache=True)
@@ -372,10 +379,10 @@ def predict_to(x, P, aux, cnt, cfg, ts, tg, t):
 
 
 # ============================================================== updates (allocation-free)
-# A scalar measurement's Jacobian h has at most three nonzeros: (i0, h0), (i1, h1), (i2, h2); an index
+# A scalar measurement's Jacobian h has at most five nonzeros: (i0, h0) .. (i4, h4); an index
 # < 0 is unused. P h' and the gain K go to the scratch slots of aux (A_WK_PHT, A_WK_K).
 @njit(cache=True)
-def innovation1(P, aux, i0, h0, i1, h1, i2, h2, r, y):
+def innovation1(P, aux, i0, h0, i1, h1, i2, h2, i3, h3, i4, h4, r, y):
     """Scalar innovation: P h' (into aux scratch), S = h P h' + r, NIS = y^2 / S. Returns (S, NIS)."""
     for i in range(NX):
         v = 0.0
@@ -385,6 +392,10 @@ def innovation1(P, aux, i0, h0, i1, h1, i2, h2, r, y):
             v += P[i, i1] * h1
         if i2 >= 0:
             v += P[i, i2] * h2
+        if i3 >= 0:
+            v += P[i, i3] * h3
+        if i4 >= 0:
+            v += P[i, i4] * h4
         aux[A_WK_PHT + i] = v  # (P h')_i
     sm = r  # S = h P h' + r
     if i0 >= 0:
@@ -393,6 +404,10 @@ def innovation1(P, aux, i0, h0, i1, h1, i2, h2, r, y):
         sm += h1 * aux[A_WK_PHT + i1]
     if i2 >= 0:
         sm += h2 * aux[A_WK_PHT + i2]
+    if i3 >= 0:
+        sm += h3 * aux[A_WK_PHT + i3]
+    if i4 >= 0:
+        sm += h4 * aux[A_WK_PHT + i4]
     return sm, y * y / sm  # NIS = y' S^-1 y
 
 
@@ -566,6 +581,8 @@ def step_init(x, P, aux, cnt, mem, cfg, ts, tg, t, s, v, direction):
         P[BG, BG] = cfg[K_INIT_SIGMA_BG] ** 2
         P[MY, MY] = cfg[K_INIT_SIGMA_MY] ** 2
         P[SF, SF] = cfg[K_INIT_SIGMA_SF] ** 2
+        P[SG, SG] = cfg[K_INIT_SIGMA_SG] ** 2
+        P[MX, MX] = cfg[K_INIT_SIGMA_MX] ** 2
     for i in range(NX):
         P[S, i] = 0.0
         P[i, S] = 0.0
@@ -698,6 +715,26 @@ def rewind_imu_only(x, P, aux, cnt, cfg, ts, tg, mem):
 
 # ============================================================== IMU
 @njit(cache=True)
+def roll_cos(f_lat_mps2, f_up_mps2, fy, fz):
+    """cos(phi) of the IMU's roll phi about the track axis (cant plus mounting), from the accelerometer.
+
+    The expected specific force in the track's level frame is (f_lat, f_up) = (v^2 k, -g); the body
+    measures it rotated by the roll: fy + i fz = (f_lat + i f_up) exp(-i phi), so
+    phi = atan2(f_up, f_lat) - atan2(fz, fy). A rolled gyro reads the yaw rate times cos(phi) (plus the
+    pitch rate times sin(phi), neglected: small, and the y gyro's bias is not estimated).
+    Returns 1 (no compensation rather than a wrong one) when the measured force is not plausible
+    (|f| not within 20 % of the expected) or the roll would exceed 0.35 rad (20 deg)."""
+    nb = math.sqrt(fy * fy + fz * fz)
+    nl = math.sqrt(f_lat_mps2 * f_lat_mps2 + f_up_mps2 * f_up_mps2)
+    if not (0.8 * nl <= nb <= 1.25 * nl):
+        return 1.0
+    phi = math.atan2(f_up_mps2, f_lat_mps2) - math.atan2(fz, fy)  # roll of the body about the track axis
+    if not (abs(phi) <= 0.35):
+        return 1.0
+    return math.cos(phi)
+
+
+@njit(cache=True)
 def step_imu(x, P, aux, cnt, mem, cfg, ts, tg, tk, t, fx, fy, fz, wx, wy, wz):
     """IMU sample at t: propagate with the previously held force, then hold this sample's force.
 
@@ -736,10 +773,15 @@ def step_imu(x, P, aux, cnt, mem, cfg, ts, tg, tk, t, fx, fy, fz, wx, wy, wz):
     aux[A_GYRO_OK] = 0.0
     if cfg[K_USE_GYRO] != 0.0 and abs(x[V]) >= cfg[K_GYRO_MIN_SPEED]:
         k = interp_at(ts, tk, x[S])
-        h_s = x[V] * slope_at(ts, tk, x[S])  # d(v k(s))/ds
+        c = 1.0  # cos(roll): the cant turns the gyro's z axis away from the vertical
+        if cfg[K_GYRO_TILT] != 0.0:
+            c = roll_cos(x[V] * x[V] * aux[A_DIR] * k, -cfg[K_GRAVITY], fy, fz)
+        g1 = c * (1.0 + x[SG])
+        h_s = g1 * x[V] * slope_at(ts, tk, x[S])  # d/ds of c (1 + s_g) v k(s)
         r = cfg[K_GYRO_SIGMA] ** 2 + (x[V] * cfg[K_CURV_SIGMA]) ** 2  # sensor + v * curvature error
-        y = wz - (x[V] * k + x[BG])  # y = gz - (v k(s) + b_g)
-        sm, nis = innovation1(P, aux, S, h_s, V, k, BG, 1.0, r, y)  # h = [v dk/ds, k, ..., 1 (b_g)]
+        y = wz - (g1 * x[V] * k + x[BG] + x[MX] * wx)  # y = gz - (c (1 + s_g) v k(s) + b_g + m_x gx)
+        # h = [c (1 + s_g) v dk/ds, c (1 + s_g) k, .., 1 (b_g), .., c v k (s_g), gx (m_x)]
+        sm, nis = innovation1(P, aux, S, h_s, V, g1 * k, BG, 1.0, SG, c * x[V] * k, MX, wx, r, y)
         aux[A_LAST_NIS_GYRO] = nis
         if nis <= cfg[K_GATE_GYRO]:
             apply_update1(x, P, aux, sm, y, cfg, cnt)
@@ -773,7 +815,7 @@ def step_odo(x, P, aux, cnt, mem, cfg, ts, tg, t, speed, sigma):
     h_ko = d * x[V]  # dh/dk_o
     r = sig * sig + cfg[K_ODO_QUANT] ** 2 / 12.0  # sample sigma^2 + quantisation
     y = speed - d * x[V] * (1.0 + x[KO])  # y = z - d v (1 + k_o)
-    sm, nis = innovation1(P, aux, V, h_v, KO, h_ko, -1, 0.0, r, y)
+    sm, nis = innovation1(P, aux, V, h_v, KO, h_ko, -1, 0.0, -1, 0.0, -1, 0.0, r, y)
     aux[A_LAST_NIS_ODO] = nis
     imu_timely = (t - aux[A_T_IMU]) <= cfg[K_IMU_TIMEOUT]
     still = (
@@ -797,7 +839,7 @@ def step_odo(x, P, aux, cnt, mem, cfg, ts, tg, t, speed, sigma):
         elif aux[A_SLIP] != 0.0 and t - aux[A_SLIP_T0] > cfg[K_SLIP_MAX_S]:
             # the odometer has disagreed for too long: trust it again, widening the speed variance
             P[V, V] += y * y
-            sm, nis = innovation1(P, aux, V, h_v, KO, h_ko, -1, 0.0, r, y)
+            sm, nis = innovation1(P, aux, V, h_v, KO, h_ko, -1, 0.0, -1, 0.0, -1, 0.0, r, y)
             use = True
             aux[A_SLIP] = 0.0
             aux[A_SLIP_BAD] = 0.0
@@ -823,7 +865,8 @@ def step_odo(x, P, aux, cnt, mem, cfg, ts, tg, t, speed, sigma):
     if still:
         # zero-velocity pseudo-measurement: z = 0 = v + noise(zupt_sigma)
         y = -x[V]
-        sm, nis = innovation1(P, aux, V, 1.0, -1, 0.0, -1, 0.0, cfg[K_ZUPT_SIGMA] ** 2, y)  # h = [0, 1, 0..]
+        r = cfg[K_ZUPT_SIGMA] ** 2
+        sm, nis = innovation1(P, aux, V, 1.0, -1, 0.0, -1, 0.0, -1, 0.0, -1, 0.0, r, y)  # h = [0, 1, 0, ..]
         if nis <= cfg[K_GATE_ZUPT]:
             if apply_update1(x, P, aux, sm, y, cfg, cnt):
                 cnt[C_ZUPT] += 1

@@ -20,11 +20,14 @@ GN = 5  #: GNSS correlated (first-order Gauss-Markov) error, north [m]
 BG = 6  #: gyro z bias [rad/s] (observed only when the gyro update is enabled)
 MY = 7  #: IMU yaw misalignment: the forward axis picks up MY * f_y (centripetal force in curves) [rad]
 SF = 8  #: accelerometer forward scale-factor error: f_x reads (1 + SF) times the true force [-]
-NX = 9
+SG = 9  #: gyro z scale-factor error: the yaw rate reads (1 + SG) times the true rate [-]
+MX = 10  #: gyro z axis tilt towards x: the yaw gyro picks up MX * (roll rate), seen in cant transitions [rad]
+NX = 11
 
 STATE_NAMES = (
     "s_m", "v_mps", "accel_bias_mps2", "odo_scale", "gnss_east_m", "gnss_north_m", "gyro_bias_radps",
-    "imu_yaw_misalignment_rad", "accel_scale",
+    "imu_yaw_misalignment_rad", "accel_scale", "gyro_scale",
+    "gyro_roll_coupling_rad",
 )
 
 # ---------------------------------------------------------------- auxiliary scalars aux (float64[NAUX])
@@ -183,7 +186,11 @@ K_SNAP_PERIOD = 49  #: period of the rewind snapshots [s]
 K_INIT_SIGMA_MY = 50  #: [rad]
 K_INIT_SIGMA_SF = 51  #: [-]
 K_CURV_SIGMA = 52  #: curvature-model error of the database [1/m]
-NCFG = 53
+K_GYRO_TILT = 53  #: 1: the gyro update uses the roll-compensated yaw rate (accelerometer + track curvature)
+K_INIT_SIGMA_SG = 54  #: initial gyro scale-factor sigma [-]
+K_Q_SG = 55  #: gyro scale-factor random walk PSD [1/s]
+K_INIT_SIGMA_MX = 56  #: initial sigma of the yaw gyro's roll-rate coupling [rad]
+NCFG = 57
 
 # ---------------------------------------------------------------- measurement kinds and result codes
 M_IMU = 1

@@ -13,16 +13,10 @@ from sfa.errors import FilterConfigError
 
 #: curvature-model error for simulated data whose yaw rate follows the database's own smoothed
 #: curvature (what remains is the filter's 4 m linear resampling of it) [1/m]. Tracks digitised from
-#: maps need more: the FilterConfig default is 1.5e-3 1/m.
-#: This is an *effective per-sample* value, and the cause of the over-confidence on the regional
-#: scenarios (docs/filter.md, Results): the curvature-model error is a function of position
-#: (correlated over metres of track), but the gyro update treats each 100 Hz sample as independent,
-#: so it over-counts the map-matching information on the arc length at every speed (without the gyro
-#: update the regional coverage is 100 %). No single constant fits all tracks (measured, per-message
-#: benchmark): 5e-4 brings regional-tunnel to 97.7 % (20 seeds) and regional-long to 88.7 % (3 seeds)
-#: but pushes tram-urban to 98.9 % and standstill-creep to 99.8 % (20 seeds); the value stays at
-#: 2.5e-4 until the kernel models the error as correlated along the track.
-CURVATURE_MODEL_INV_M = 2.5e-4
+#: maps need more: the FilterConfig default is 1.5e-3 1/m. Before the gyro model had the cant (roll
+#: compensation), the gyro scale (SG) and the roll-rate coupling (MX), this value had to stand in for
+#: all three and no single value fitted both tram and regional runs (docs/filter.md, Results).
+CURVATURE_MODEL_INV_M = 1.0e-4
 
 
 def filter_config_for(
@@ -59,10 +53,12 @@ def filter_config_for(
         init_sigma_yaw_misalignment_rad=imu_spec.misalignment_sigma,
         init_sigma_accel_scale=imu_spec.accel_scale_sigma,
         gyro_bias_rw_radps_rts=imu_spec.gyro_bias_rw,
-        # gyro white noise per sample and scale error on a ~0.3 rad/s yaw rate; the curvature model
-        # error enters as (v * CURVATURE_MODEL_INV_M)^2
+        # gyro white noise per sample and its quantisation; the scale error is the state SG, the
+        # curvature model error enters as (v * CURVATURE_MODEL_INV_M)^2
         gyro_sigma_radps=math.hypot(imu_spec.gyro_noise_density * math.sqrt(imu_spec.rate_hz),
-                                    imu_spec.gyro_scale_sigma * 0.3),
+                                    imu_spec.gyro_lsb / math.sqrt(12.0)),
+        init_sigma_gyro_scale=max(imu_spec.gyro_scale_sigma, 1e-4),
+        init_sigma_gyro_roll_coupling_rad=max(imu_spec.misalignment_sigma, 1e-4),
         curvature_sigma_inv_m=CURVATURE_MODEL_INV_M,
         init_sigma_gyro_bias_radps=imu_spec.gyro_bias_sigma,
         init_sigma_odo_scale=odo_spec.scale_sigma,

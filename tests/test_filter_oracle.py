@@ -21,7 +21,7 @@ from sfa.presets import filter_config_for
 from sfa.synthetic import Profile, build_track_db, generate
 from track_db import TrackDatabase
 
-NX = 9
+NX = 11
 
 
 @pytest.fixture(scope="module")
@@ -32,7 +32,7 @@ def db(tmp_path_factory):
 
 
 class Oracle:
-    """The filter's model with FilterPy: x = [s, v, b_a, k_o, e_gnss, n_gnss, b_g, m_yaw, s_f]."""
+    """The filter's model with FilterPy: x = [s, v, b_a, k_o, e_gnss, n_gnss, b_g, m_yaw, s_f, s_g, m_x]."""
 
     def __init__(self, line, cfg, grade_s, grade, curv):
         from scipy.stats import chi2
@@ -48,15 +48,17 @@ class Oracle:
         self.gate_gyro = chi2.ppf(cfg.gate_prob_gyro, 1)
         self.curv_s, self.curv = grade_s, curv
         self.gyro_updates = 0
+        self.roll_compensated = 0
+        self.direction = 1.0
 
     def init(self, m: InitMeas):
         c = self.cfg
-        self.ekf.x = np.array([[m.arc_length_m, m.speed_mps, 0, 0, 0, 0, 0, 0, 0]], dtype=float).T  # column
+        self.ekf.x = np.array([[m.arc_length_m, m.speed_mps] + [0] * (NX - 2)], dtype=float).T  # column
         self.ekf.P = np.diag([
             c.init_sigma_s_m ** 2, c.init_sigma_v_mps ** 2, c.init_sigma_accel_bias_mps2 ** 2,
             c.init_sigma_odo_scale ** 2, c.gps_gm_sigma_m ** 2, c.gps_gm_sigma_m ** 2,
             c.init_sigma_gyro_bias_radps ** 2, c.init_sigma_yaw_misalignment_rad ** 2,
-            c.init_sigma_accel_scale ** 2,
+            c.init_sigma_accel_scale ** 2, c.init_sigma_gyro_scale ** 2, c.init_sigma_gyro_roll_coupling_rad ** 2,
         ])
         g = np.interp(m.arc_length_m, self.grade_s, self.grade)
         self.fx = 9.80665 * g / math.sqrt(1 + g * g)  # until the first IMU: constant speed
@@ -87,6 +89,7 @@ class Oracle:
         Q[3, 3] = c.odo_scale_rw_per_rts ** 2 * h
         Q[4, 4] = Q[5, 5] = c.gps_gm_sigma_m ** 2 * (1 - phi * phi)
         Q[6, 6] = c.gyro_bias_rw_radps_rts ** 2 * h
+        Q[9, 9] = c.gyro_scale_rw_per_rts ** 2 * h
         self.ekf.F, self.ekf.Q = F, Q
         self.ekf.B = np.array([[0.5 * h * h], [h]] + [[0.0]] * (NX - 2))
         self.ekf.predict(u=np.array([[u]]))
@@ -102,14 +105,29 @@ class Oracle:
             k = np.interp(s, self.curv_s, self.curv)
             i = int(np.clip(np.searchsorted(self.curv_s, s, side="right") - 1, 0, self.curv_s.size - 2))
             dk = (self.curv[i + 1] - self.curv[i]) / (self.curv_s[i + 1] - self.curv_s[i])
+            # the gyro is rolled by the cant: the accelerometer's (f_y, f_z) is the level frame's
+            # (v^2 k_travel, -g) turned by the roll angle; the yaw gyro reads cos(roll) times the yaw rate
+            lat = x[1, 0] ** 2 * self.direction * k
+            level = complex(lat, -self.cfg.gravity_mps2)
+            body = complex(m.f_mps2[1], m.f_mps2[2])
+            roll = np.angle(level) - np.angle(body)
+            c = math.cos(roll) if 0.8 <= abs(body) / abs(level) <= 1.25 and abs(roll) <= 0.35 else 1.0
+            if not self.cfg.gyro_tilt_compensation:
+                c = 1.0
+            self.roll_compensated += c != 1.0
+            gx = m.w_radps[0]
+            g1 = c * (1.0 + x[9, 0])
             H = np.zeros((1, NX))
-            H[0, 0], H[0, 1], H[0, 6] = x[1, 0] * dk, k, 1.0
+            H[0, 0], H[0, 1], H[0, 6], H[0, 9], H[0, 10] = g1 * x[1, 0] * dk, g1 * k, 1.0, c * x[1, 0] * k, gx
             R = np.array([[self.cfg.gyro_sigma_radps ** 2 + (x[1, 0] * self.cfg.curvature_sigma_inv_m) ** 2]])
-            y = m.w_radps[2] - (x[1, 0] * k + x[6, 0])
+
+            def hx(xx):  # gz = c (1 + s_g) v k(s) + b_g + m_x g_x
+                return np.array([[c * (1.0 + xx[9, 0]) * xx[1, 0] * k + xx[6, 0] + xx[10, 0] * gx]])
+
+            y = m.w_radps[2] - hx(x)[0, 0]
             nis = y * y / (H @ self.ekf.P @ H.T + R)[0, 0]
             if nis <= self.gate_gyro:
-                self.ekf.update(np.array([[m.w_radps[2]]]), lambda _x: H,
-                                lambda xx: np.array([[xx[1, 0] * k + xx[6, 0]]]), R=R)
+                self.ekf.update(np.array([[m.w_radps[2]]]), lambda _x: H, hx, R=R)
                 self.gyro_updates += 1
 
     def odo(self, m: OdoMeas):
@@ -118,7 +136,7 @@ class Oracle:
         r = max(m.sigma_mps, c.odo_sigma_min_mps) ** 2 + c.odo_quant_mps ** 2 / 12
 
         def hj(x):
-            return np.array([[0.0, 1 + x[3, 0], 0, x[1, 0], 0, 0, 0, 0, 0]])
+            return np.array([[0.0, 1 + x[3, 0], 0, x[1, 0]] + [0] * (NX - 4)])
 
         def hx(x):
             return np.array([[x[1, 0] * (1 + x[3, 0])]])
@@ -137,7 +155,8 @@ class Oracle:
 
         def hj(x):
             de, dn = deriv(x[0, 0])
-            return np.array([[de, 0, 0, 0, 1, 0, 0, 0, 0], [dn, 0, 0, 0, 0, 1, 0, 0, 0]], dtype=float)
+            z = [0] * (NX - 6)
+            return np.array([[de, 0, 0, 0, 1, 0, *z], [dn, 0, 0, 0, 0, 1, *z]], dtype=float)
 
         def hx(x):
             e, n = line.point_at(x[0, 0])
@@ -183,6 +202,7 @@ def test_filter_matches_filterpy_oracle_to_1e9(db):
         compared += 1
     assert compared == len(run.measurements) - 1
     assert cfg.use_gyro and oracle.gyro_updates > 10000  # the gyro update is part of the compared model
+    assert oracle.roll_compensated > 10000  # and so is its roll compensation
     assert f.counters()["gyro_accepted"] == oracle.gyro_updates
     x, _ = f.state()
     assert abs(x[0] - run.s_m[-1]) < 2.0  # and the shared answer is a good one

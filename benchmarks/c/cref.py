@@ -34,6 +34,8 @@ _NAMES = (
     "BG",
     "MY",
     "SF",
+    "SG",
+    "MX",
     "NX",
     "NAUX",
     "NCNT",

@@ -157,6 +157,7 @@ static void predict_step(double *x, double *P, const double *aux, const double *
     PIJ(P, GE, GE) += gm * gm * (1.0 - phi * phi);
     PIJ(P, GN, GN) += gm * gm * (1.0 - phi * phi);
     PIJ(P, BG, BG) += cfg[K_Q_BG] * h;
+    PIJ(P, SG, SG) += cfg[K_Q_SG] * h;
 }
 
 static void predict_to(double *x, double *P, double *aux, long *cnt, const double *cfg, const double *ts,
@@ -174,25 +175,29 @@ static void predict_to(double *x, double *P, double *aux, long *cnt, const doubl
 }
 
 /* ------------------------------------------------------------------ updates (as sfa/kernels.py) */
-/* scalar measurement: h has nonzeros h0, h1, h2 at i0, i1, i2 (index < 0: unused) */
+/* scalar measurement: h has nonzeros h0 .. h4 at i0 .. i4 (index < 0: unused) */
 typedef struct {
     double pht[NX], k[NX];
     double sm, nis;
 } Innov1;
 
-static void innovation1(const double *P, int i0, double h0, int i1, double h1, int i2, double h2, double r,
-                        double y, Innov1 *o) {
+static void innovation1(const double *P, int i0, double h0, int i1, double h1, int i2, double h2, int i3,
+                        double h3, int i4, double h4, double r, double y, Innov1 *o) {
     for (int i = 0; i < NX; i++) {
         double v = 0.0;
         if (i0 >= 0) v += PIJ(P, i, i0) * h0;
         if (i1 >= 0) v += PIJ(P, i, i1) * h1;
         if (i2 >= 0) v += PIJ(P, i, i2) * h2;
+        if (i3 >= 0) v += PIJ(P, i, i3) * h3;
+        if (i4 >= 0) v += PIJ(P, i, i4) * h4;
         o->pht[i] = v;
     }
     double sm = r;
     if (i0 >= 0) sm += h0 * o->pht[i0];
     if (i1 >= 0) sm += h1 * o->pht[i1];
     if (i2 >= 0) sm += h2 * o->pht[i2];
+    if (i3 >= 0) sm += h3 * o->pht[i3];
+    if (i4 >= 0) sm += h4 * o->pht[i4];
     o->sm = sm;
     o->nis = y * y / sm;
 }
@@ -413,6 +418,8 @@ static long step_init(double *x, double *P, double *aux, long *cnt, double *mem,
         PIJ(P, BG, BG) = pow(cfg[K_INIT_SIGMA_BG], 2);
         PIJ(P, MY, MY) = pow(cfg[K_INIT_SIGMA_MY], 2);
         PIJ(P, SF, SF) = pow(cfg[K_INIT_SIGMA_SF], 2);
+        PIJ(P, SG, SG) = pow(cfg[K_INIT_SIGMA_SG], 2);
+        PIJ(P, MX, MX) = pow(cfg[K_INIT_SIGMA_MX], 2);
     }
     for (int i = 0; i < NX; i++) {
         PIJ(P, S, i) = 0.0;
@@ -454,6 +461,15 @@ static long step_init(double *x, double *P, double *aux, long *cnt, double *mem,
 }
 
 /* ------------------------------------------------------------------ IMU */
+static double roll_cos(double f_lat, double f_up, double fy, double fz) {
+    double nb = sqrt(fy * fy + fz * fz);
+    double nl = sqrt(f_lat * f_lat + f_up * f_up);
+    if (!(0.8 * nl <= nb && nb <= 1.25 * nl)) return 1.0;
+    double phi = atan2(f_up, f_lat) - atan2(fz, fy);
+    if (!(fabs(phi) <= 0.35)) return 1.0;
+    return cos(phi);
+}
+
 static long step_imu(double *x, double *P, double *aux, long *cnt, double *mem, const double *cfg,
                      const double *ts, const double *tg, const double *tk, long nv, double t, double fx,
                      double fy, double fz, double wx, double wy, double wz) {
@@ -490,10 +506,13 @@ static long step_imu(double *x, double *P, double *aux, long *cnt, double *mem, 
     if (cfg[K_USE_GYRO] != 0.0 && fabs(x[V]) >= cfg[K_GYRO_MIN_SPEED]) {
         Innov1 in;
         double k = interp_at(ts, tk, nv, x[S]);
-        double h_s = x[V] * slope_at(ts, tk, nv, x[S]);
+        double c = 1.0;
+        if (cfg[K_GYRO_TILT] != 0.0) c = roll_cos(x[V] * x[V] * aux[A_DIR] * k, -cfg[K_GRAVITY], fy, fz);
+        double g1 = c * (1.0 + x[SG]);
+        double h_s = g1 * x[V] * slope_at(ts, tk, nv, x[S]);
         double r = pow(cfg[K_GYRO_SIGMA], 2) + pow(x[V] * cfg[K_CURV_SIGMA], 2); /* sensor + v * curvature error */
-        double y = wz - (x[V] * k + x[BG]);
-        innovation1(P, S, h_s, V, k, BG, 1.0, r, y, &in);
+        double y = wz - (g1 * x[V] * k + x[BG] + x[MX] * wx);
+        innovation1(P, S, h_s, V, g1 * k, BG, 1.0, SG, c * x[V] * k, MX, wx, r, y, &in);
         aux[A_LAST_NIS_GYRO] = in.nis;
         if (in.nis <= cfg[K_GATE_GYRO]) {
             apply_update1(x, P, &in, y, cfg, cnt);
@@ -529,7 +548,7 @@ static long step_odo(double *x, double *P, double *aux, long *cnt, double *mem, 
     double h_v = d * (1.0 + x[KO]), h_ko = d * x[V];
     double r = sig * sig + pow(cfg[K_ODO_QUANT], 2) / 12.0;
     double y = speed - d * x[V] * (1.0 + x[KO]);
-    innovation1(P, V, h_v, KO, h_ko, -1, 0.0, r, y, &in);
+    innovation1(P, V, h_v, KO, h_ko, -1, 0.0, -1, 0.0, -1, 0.0, r, y, &in);
     double nis = in.nis;
     aux[A_LAST_NIS_ODO] = nis;
     int imu_timely = (t - aux[A_T_IMU]) <= cfg[K_IMU_TIMEOUT];
@@ -549,7 +568,7 @@ static long step_odo(double *x, double *P, double *aux, long *cnt, double *mem, 
             rewind_imu_only(x, P, aux, cnt, cfg, ts, tg, nv, mem);
         } else if (aux[A_SLIP] != 0.0 && t - aux[A_SLIP_T0] > cfg[K_SLIP_MAX_S]) {
             PIJ(P, V, V) += y * y;
-            innovation1(P, V, h_v, KO, h_ko, -1, 0.0, r, y, &in);
+            innovation1(P, V, h_v, KO, h_ko, -1, 0.0, -1, 0.0, -1, 0.0, r, y, &in);
             nis = in.nis;
             use = 1;
             aux[A_SLIP] = 0.0;
@@ -580,7 +599,7 @@ static long step_odo(double *x, double *P, double *aux, long *cnt, double *mem, 
     }
     if (still) {
         double yz = -x[V];
-        innovation1(P, V, 1.0, -1, 0.0, -1, 0.0, pow(cfg[K_ZUPT_SIGMA], 2), yz, &in);
+        innovation1(P, V, 1.0, -1, 0.0, -1, 0.0, -1, 0.0, -1, 0.0, pow(cfg[K_ZUPT_SIGMA], 2), yz, &in);
         if (in.nis <= cfg[K_GATE_ZUPT])
             if (apply_update1(x, P, &in, yz, cfg, cnt)) cnt[C_ZUPT] += 1;
     }
