@@ -20,7 +20,7 @@ from hypothesis import strategies as st
 from interface_modules.scenario import load_scenario
 from interface_modules.tracks import database_path
 from listener.codec import INPUT_FORMS, DecodeError, decode_input, input_layout
-from listener.config import ListenerConfig, MergeConfig
+from listener.config import FilterSelection, ListenerConfig, MergeConfig
 from tools.capture_reader import CaptureStats, read_capture
 from tools.fast_decode import decode_bytes
 from tools.fast_pcap import scan_capture
@@ -44,6 +44,27 @@ def sim(tmp_path_factory):
     stats = CaptureStats()
     dgrams = [(g.time_s, g.src, g.payload) for g in read_capture(d / "capture.pcap", 48000, stats)]
     yield {"dir": d, "cap": d / "capture.pcap", "track": track, "dgrams": dgrams}
+    track.close()
+
+
+@pytest.fixture(scope="module")
+def tram(tmp_path_factory):
+    """The Jena tram over its first 8 min (line 2 passes junctions with other lines: branch hypotheses)."""
+    d = tmp_path_factory.mktemp("tram")
+    subprocess.run(
+        [sys.executable, "-m", "sfa", "sim", "tram-urban", "--duration", "480", "--out-dir", str(d)],
+        check=True,
+        capture_output=True,
+        timeout=300,
+    )
+    sc = load_scenario("tram-urban")
+    track = TrackDatabase.open(database_path(sc))
+    sel = FilterSelection(imu=sc.imu.preset, odometer=sc.odometer.preset, gps=sc.gps.preset)
+    yield {
+        "cap": d / "capture.pcap",
+        "track": track,
+        "opts": ReplayOptions(config=ListenerConfig(filter=sel)),
+    }
     track.close()
 
 
@@ -76,6 +97,56 @@ def test_fast_equals_exact_on_a_clean_capture(sim):
     assert_same(exact, fast)
     assert np.all(fast.new_estimates()["retransmit"] == 0)
     assert exact.metrics["input"]["stops"] == 1  # the run ends at the simulator's STOP
+
+
+def test_fast_equals_exact_through_junctions_and_stops(tram):
+    """Junction windows (hypotheses on several lines) go through TrackFilter.process inside the fast
+    path; the rest, standstill reversal hypotheses included, runs compiled. Same estimates, bit for bit."""
+    exact = replay_capture(tram["cap"], tram["track"], tram["opts"])
+    fast, info = try_fast_replay(tram["cap"], tram["track"], tram["opts"])
+    assert info.used, info.reason
+    assert fast is not None
+    assert_same(exact, fast)
+    fr = fast.metrics["fast_replay"]
+    assert fr["handed_back_at_junctions"] >= 1  # a junction window did go through TrackFilter
+    assert info.python_steps >= fr["handed_back_at_junctions"]
+    assert info.compiled > 0.5 * fast.datagrams  # and most of the capture still ran compiled
+    assert fr["compiled_fraction"] == pytest.approx(info.compiled / fast.datagrams)
+    assert fast.metrics["filter"]["counters"]["initialisations"] >= 1
+
+
+def _resequence(dgrams):
+    """Renumber every sender's SEQ consecutively (after datagrams were added or removed)."""
+    nxt: dict = {}
+    out = []
+    for t, addr, p in dgrams:
+        seq = nxt.get(addr, struct.unpack("<H", p[1:3])[0])
+        out.append((t, addr, p[:1] + struct.pack("<H", seq & 0xFFFF) + p[3:]))
+        nxt[addr] = seq + 1
+    return out
+
+
+def test_reinitialisation_and_a_time_jump_go_through_trackfilter(sim, tmp_path):
+    """A second GROUND TRUTH (both senses of travel again) and 15 s without any datagram (the filter's
+    time-jump rule) used to send the whole capture to the exact replay; now only those rows do."""
+    dgrams = list(sim["dgrams"])
+    t0, gt_addr, gt = dgrams[0]
+    assert gt[0] == 8 and struct.unpack("<BHBB", gt[:5])[2:] == (1, 5)
+    k = next(i for i, d in enumerate(dgrams) if d[0] - t0 >= 20.0 and d[2][0] == 1)
+    imu_epoch = struct.unpack("<7d", dgrams[k][2][5:])[6]
+    fields = list(struct.unpack("<BHBBi5d", gt))
+    fields[-1] = imu_epoch + 0.001
+    again = (dgrams[k][0] + 1e-4, gt_addr, struct.pack("<BHBBi5d", *fields))
+    out = dgrams[: k + 1] + [again] + [d for d in dgrams[k + 1 :] if not 35.0 <= d[0] - t0 < 50.0]
+    cap = tmp_path / "reinit-gap.pcap"
+    write_capture(cap, _resequence(out))
+    exact = replay_capture(cap, sim["track"], ReplayOptions())
+    fast, info = try_fast_replay(cap, sim["track"], ReplayOptions())
+    assert info.used, info.reason
+    assert_same(exact, fast)
+    counters = exact.metrics["filter"]["counters"]
+    assert counters["initialisations"] == 2 and counters["time_jumps_rejected"] == 1
+    assert 2 <= info.python_steps < 0.2 * fast.datagrams
 
 
 def _bad_payloads() -> list[bytes]:

@@ -1,11 +1,26 @@
-"""The filter loop of the fast replay: ``sfa.batch.run_packed`` plus what the replay result records.
+"""The filter loop of the fast replay: ``sfa.filter.TrackFilter.process`` in compiled code, on one line.
 
-Same kernels, same order, same dispatch as :func:`sfa.batch.run_packed` (IMU, odometer, GNSS,
-initialisation by ``kind``), and after every measurement the reported estimate (state time, arc
-length, speed, sigma, status, reason bits), the NIS the per-message filter reports for odometer and
-GNSS updates, and whether the listener would send an output for it: ``listener.pipeline``'s rule
-(finite estimate, epoch not older than the last output, and not the same epoch with the same arc
-length). tests/test_fast_replay.py checks this loop against ``run_packed`` on the same inputs.
+:func:`run_segment` steps packed measurements (layout of ``sfa.batch.Packed``) through the same
+``sfa.kernels`` functions, in the same order, as ``TrackFilter`` does with every hypothesis it keeps,
+as long as all of them are on one line and share the junctions they have already branched at. It
+carries out what ``TrackFilter`` does between the kernel calls, transliterated from sfa/filter.py:
+
+- the reported hypothesis's outcome and NIS, and its estimate after every measurement,
+- hypothesis scoring (``_score``: gyro, odometer and GNSS NIS) and pruning (``_prune``: likelihood
+  ratio, off the end of the line, duplicates, ``max_hypotheses``, the switch of the reported one),
+- the reversed sense of travel kept at standstill (``_spawn_reversals``),
+
+and it stops, handing the measurement back to the caller (which runs ``TrackFilter.process`` on it),
+where ``TrackFilter`` would do anything else:
+
+- STOP_BEFORE: before a GROUND TRUTH (initialisation) or a measurement the time-jump rule looks at,
+- STOP_UNDONE: after restoring the state from before the measurement, when it would spawn branch
+  hypotheses (a hypothesis within the junction window of a junction it has not branched at, or at an
+  arc length that is not finite) or its scores would not be finite.
+
+After every processed measurement it also applies the listener's output rule (finite estimate, not
+stale against the STROBE clock, epoch not older than the last output, not the same epoch and arc
+length) as ``listener.pipeline.Pipeline._maybe_output`` does.
 """
 
 from __future__ import annotations
@@ -18,20 +33,349 @@ from numba import njit
 from sfa import kernels as K
 from sfa import layout as L
 
+DONE = 0  #: every measurement processed
+STOP_BEFORE = 1  #: stopped before measurement i (state untouched by it)
+STOP_UNDONE = 2  #: measurement i was stepped, then undone (state as before it)
 
-# Not cached on disk: numba's cache is keyed on this file only, so a cached loop would keep running
-# the sfa.kernels it was compiled with after sfa/kernels.py changes (compiled once per process).
+
+@njit(cache=False)
+def _prune(order, ns, X, AUX, length_m, window, prune_ratio, switch_ratio, max_hyps, keep, key):
+    """TrackFilter._prune over the hypotheses ``order[:ns[0]]``, reported ``order[ns[1]]`` (finite scores)."""
+    nh = ns[0]
+    rep = order[ns[1]]
+    best = AUX[order[0], L.A_LOGLIK]
+    for j in range(1, nh):
+        v = AUX[order[j], L.A_LOGLIK]
+        if v > best:
+            best = v
+    # sorted(hyps, key=(h is not reported, -loglik)): the reported one first, the others stably by
+    # decreasing score
+    m = 0
+    keep[m] = rep
+    m += 1
+    for j in range(nh):
+        h = order[j]
+        if h == rep:
+            continue
+        kh = -AUX[h, L.A_LOGLIK]
+        p = m
+        while p > 1 and key[p - 1] > kh:
+            keep[p] = keep[p - 1]
+            key[p] = key[p - 1]
+            p -= 1
+        keep[p] = h
+        key[p] = kh
+        m += 1
+    kept = 0
+    for j in range(m):
+        h = keep[j]
+        if AUX[h, L.A_LOGLIK] < best - prune_ratio:
+            continue
+        s = X[h, L.S]
+        if s > length_m + window or s < -window:
+            if nh > 1:
+                continue
+        dup = False
+        for q in range(kept):
+            g = keep[q]
+            if int(AUX[g, L.A_DIR]) == int(AUX[h, L.A_DIR]) and abs(X[g, L.S] - s) < 1.0:
+                dup = True
+                break
+        if dup:
+            continue
+        keep[kept] = h  # kept <= j: in place
+        kept += 1
+    if kept == 0:
+        keep[0] = rep
+        kept = 1
+    if kept > max_hyps:
+        kept = max_hyps
+    rep_in = False
+    for q in range(kept):
+        if keep[q] == rep:
+            rep_in = True
+    lead = keep[0]
+    for q in range(1, kept):
+        if AUX[keep[q], L.A_LOGLIK] > AUX[lead, L.A_LOGLIK]:
+            lead = keep[q]
+    if rep_in:
+        chosen = lead if AUX[lead, L.A_LOGLIK] > AUX[rep, L.A_LOGLIK] + switch_ratio else rep
+    else:
+        chosen = lead
+    if kept == 1:
+        AUX[keep[0], L.A_LOGLIK] = 0.0
+    for q in range(kept):
+        order[q] = keep[q]
+        if keep[q] == chosen:
+            ns[1] = q
+    ns[0] = kept
+
+
+@njit(cache=False)
+def _score(order, nh, AUX, slot, cap):
+    """TrackFilter._score's update (before its prune); False when a score is no longer finite."""
+    ok = True
+    for j in range(nh):
+        h = order[j]
+        nis = AUX[h, slot]
+        AUX[h, L.A_LOGLIK] -= 0.5 * (cap if cap < nis else nis)  # min(nis, cap) as Python evaluates it
+        if not math.isfinite(AUX[h, L.A_LOGLIK]):
+            ok = False
+    return ok
+
+
+@njit(cache=False)
+def _spawn_reversals(order, ns, X, PP, AUX, CNT, MEM):
+    """TrackFilter._spawn_reversals' additions (mirrored hypotheses); True when any was added."""
+    nh = ns[0]
+    cap = X.shape[0]
+    total = nh
+    for j in range(nh):
+        h = order[j]
+        if AUX[h, L.A_STILL] == 0.0:
+            continue
+        dh = int(AUX[h, L.A_DIR])
+        twin = False
+        for q in range(total):
+            g = order[q]
+            if int(AUX[g, L.A_DIR]) != dh and abs(X[g, L.S] - X[h, L.S]) < 1.0:
+                twin = True
+                break
+        if twin:
+            continue
+        free = -1
+        for c in range(cap):
+            used = False
+            for q in range(total):
+                if order[q] == c:
+                    used = True
+                    break
+            if not used:
+                free = c
+                break
+        X[free, :] = X[h, :]
+        PP[free, :, :] = PP[h, :, :]
+        AUX[free, :] = AUX[h, :]
+        CNT[free, :] = CNT[h, :]
+        MEM[free, :] = 0.0
+        X[free, L.V] = -X[free, L.V]
+        AUX[free, L.A_DIR] = -AUX[free, L.A_DIR]
+        PP[free, L.V, :] = -PP[free, L.V, :]
+        PP[free, :, L.V] = -PP[free, :, L.V]
+        order[total] = free
+        total += 1
+    ns[0] = total
+    return total > nh
+
+
+@njit(cache=False)
+def run_segment(
+    kind,
+    t,
+    vals,
+    i0,
+    X,
+    PP,
+    AUX,
+    CNT,
+    MEM,
+    SX,
+    SP,
+    SA,
+    SC,
+    SM,
+    order,
+    ns,
+    cfg,
+    ts,
+    te,
+    tn,
+    tg,
+    tk,
+    length_m,
+    junc_s,
+    window,
+    jump_limit,
+    cap,
+    prune_ratio,
+    switch_ratio,
+    max_hyps,
+    reversal,
+    fresh_min,
+    last,
+    out_f,
+    out_i,
+    stale,
+):
+    """Step measurements i0, i0 + 1, ... of (kind, t, vals) with the hypotheses ``order[:ns[0]]``
+    (slots of X, PP, AUX, CNT, MEM), reported ``order[ns[1]]``; S* are snapshot arrays of the same shapes.
+
+    out_f (n, 5): epoch [s], s [m], speed [m/s], sigma_s [m], nis (NaN for IMU); out_i (n, 4): outcome,
+    status, reason bits, 1 when the listener sends an output. ``last``: the listener's last output
+    (epoch, s), advanced; ``stale[0]``: estimates not sent as stale, advanced.
+    Returns (index of the first measurement not processed, DONE / STOP_BEFORE / STOP_UNDONE).
+    """
+    n = kind.shape[0]
+    nj = junc_s.shape[0]
+    keep = np.empty(X.shape[0], dtype=np.int64)
+    key = np.empty(X.shape[0])
+    s_order = np.empty(X.shape[0], dtype=np.int64)
+    for i in range(i0, n):
+        k = kind[i]
+        ti = t[i]
+        v = vals[i]
+        if k != 1 and k != 2 and k != 3:
+            return i, STOP_BEFORE
+        nh = ns[0]
+        rep = ns[1]
+        if math.isfinite(ti) and ti - AUX[order[rep], L.A_T_STATE] > jump_limit:
+            return i, STOP_BEFORE  # TrackFilter._is_time_jump
+        snap = k != 1 and (nj > 0 or nh > 1)
+        if snap:
+            for j in range(nh):
+                h = order[j]
+                s_order[j] = h
+                SX[h, :] = X[h, :]
+                SP[h, :, :] = PP[h, :, :]
+                SA[h, :] = AUX[h, :]
+                SC[h, :] = CNT[h, :]
+                if k == 2:  # step_gps does not take mem
+                    SM[h, :] = MEM[h, :]
+        code = K.O_INVALID
+        accepted = False
+        for j in range(nh):
+            h = order[j]
+            if k == 1:
+                c = K.step_imu(
+                    X[h],
+                    PP[h],
+                    AUX[h],
+                    CNT[h],
+                    MEM[h],
+                    cfg,
+                    ts,
+                    tg,
+                    tk,
+                    ti,
+                    v[0],
+                    v[1],
+                    v[2],
+                    v[3],
+                    v[4],
+                    v[5],
+                )
+            elif k == 2:
+                c = K.step_odo(X[h], PP[h], AUX[h], CNT[h], MEM[h], cfg, ts, tg, ti, v[0], v[1])
+            else:
+                fq = -1 if not math.isfinite(v[3]) else int(v[3])
+                c = K.step_gps(X[h], PP[h], AUX[h], CNT[h], cfg, ts, te, tn, tg, ti, v[0], v[1], v[2], fq)
+            if c == K.O_ACCEPTED:
+                accepted = True
+            if j == rep:
+                code = c
+        nis = math.nan
+        if k == 2:
+            nis = AUX[order[rep], L.A_LAST_NIS_ODO]
+        elif k == 3:
+            nis = AUX[order[rep], L.A_LAST_NIS_GPS]
+        undo = False
+        if nj > 0 and (k == 3 or (k == 2 and code == K.O_ACCEPTED)):
+            # TrackFilter._spawn_branches would look for junctions within the window: any not yet
+            # branched at (junc_s) means new hypotheses; a non-finite s is taken as one (bisect on NaN)
+            for j in range(nh):
+                s = X[order[j], L.S]
+                if not math.isfinite(s):
+                    undo = True
+                    break
+                lo = s - window
+                hi = s + window
+                for q in range(nj):
+                    if lo <= junc_s[q] <= hi:
+                        undo = True
+                        break
+                if undo:
+                    break
+        if not undo and nh > 1:
+            if k == 1:
+                all_ok = True
+                any_on = False
+                for j in range(nh):
+                    h = order[j]
+                    if not AUX[h, L.A_LAST_NIS_GYRO] >= 0.0:
+                        all_ok = False
+                    if AUX[h, L.A_GYRO_OK] != 0.0:
+                        any_on = True
+                if all_ok and any_on:
+                    _score(order, nh, AUX, L.A_LAST_NIS_GYRO, cap)  # gyro NIS >= 0: finite scores
+                    _prune(
+                        order, ns, X, AUX, length_m, window, prune_ratio, switch_ratio, max_hyps, keep, key
+                    )
+            elif accepted:
+                slot = L.A_LAST_NIS_ODO if k == 2 else L.A_LAST_NIS_GPS
+                if _score(order, nh, AUX, slot, cap):
+                    _prune(
+                        order, ns, X, AUX, length_m, window, prune_ratio, switch_ratio, max_hyps, keep, key
+                    )
+                else:
+                    undo = True
+        if undo:
+            for j in range(nh):
+                h = s_order[j]
+                order[j] = h
+                X[h, :] = SX[h, :]
+                PP[h, :, :] = SP[h, :, :]
+                AUX[h, :] = SA[h, :]
+                CNT[h, :] = SC[h, :]
+                if k == 2:
+                    MEM[h, :] = SM[h, :]
+            ns[0] = nh
+            ns[1] = rep
+            return i, STOP_UNDONE
+        if k == 2 and reversal and AUX[order[ns[1]], L.A_STILL] != 0.0:
+            if _spawn_reversals(order, ns, X, PP, AUX, CNT, MEM):
+                _prune(order, ns, X, AUX, length_m, window, prune_ratio, switch_ratio, max_hyps, keep, key)
+        r = order[ns[1]]
+        epoch = AUX[r, L.A_T_STATE]
+        st, bits, sig = K.status_of(X[r], PP[r], AUX[r], cfg, epoch)
+        s = X[r, L.S]
+        out_f[i, 0] = epoch
+        out_f[i, 1] = s
+        out_f[i, 2] = float(int(AUX[r, L.A_DIR])) * X[r, L.V]
+        out_f[i, 3] = sig
+        out_f[i, 4] = nis
+        out_i[i, 0] = code
+        out_i[i, 1] = st
+        out_i[i, 2] = bits
+        send = 0
+        if math.isfinite(epoch) and math.isfinite(s):
+            if epoch < fresh_min[i]:
+                stale[0] += 1
+            elif epoch >= last[0] and not (epoch == last[0] and s == last[1]):
+                send = 1
+                last[0] = epoch
+                last[1] = s
+        out_i[i, 3] = send
+    return n, DONE
+
+
+@njit(cache=True)
+def interp_many(ts, arr, s, valid):
+    """``sfa.kernels.interp_at`` per element where ``valid`` and ts[0] <= s <= ts[-1]; NaN elsewhere."""
+    out = np.full(s.shape[0], np.nan)
+    lo = ts[0]
+    hi = ts[ts.shape[0] - 1]
+    for i in range(s.shape[0]):
+        if valid[i] and lo <= s[i] <= hi:
+            out[i] = K.interp_at(ts, arr, s[i])
+    return out
+
+
 @njit(cache=False)
 def run_replay_loop(
     kind, t, vals, x, P, aux, cnt, mem, cfg, ts, te, tn, tg, tk, last_epoch, last_s, out_f, out_i
 ):
-    """Step through packed measurements (layout of sfa.batch.Packed).
-
-    out_f (n, 5): epoch [s], s [m], v [m/s], sigma_s [m], nis (NaN for IMU/init);
-    out_i (n, 4): outcome, status, reason bits, 1 when the listener sends an output after it.
-    ``last_epoch`` / ``last_s``: the listener's last output before the first row (-inf / NaN: none).
-    Returns the number of outputs.
-    """
+    """``sfa.batch.run_packed``'s loop with the NIS and the output rule (no hypotheses, no stale rule):
+    the reference ``sfa bench`` checks ``run_packed``'s disk-cached compile against. Returns the outputs."""
     n = kind.shape[0]
     outputs = 0
     for i in range(n):
@@ -72,15 +416,3 @@ def run_replay_loop(
                 outputs += 1
         out_i[i, 3] = send
     return outputs
-
-
-@njit(cache=True)
-def interp_many(ts, arr, s, valid):
-    """``sfa.kernels.interp_at`` per element where ``valid`` and ts[0] <= s <= ts[-1]; NaN elsewhere."""
-    out = np.full(s.shape[0], np.nan)
-    lo = ts[0]
-    hi = ts[ts.shape[0] - 1]
-    for i in range(s.shape[0]):
-        if valid[i] and lo <= s[i] <= hi:
-            out[i] = K.interp_at(ts, arr, s[i])
-    return out

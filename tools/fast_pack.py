@@ -11,9 +11,40 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+from numba import njit
 
 #: N_DOUBLE of IMU, odometer and GPS datagrams that carry an epoch
 EPOCH_DOUBLES = {1: 7, 2: 3, 3: 5}
+
+
+@njit(cache=True)
+def _pack(stype, n_int, values, rows, kind, t_s, vals, lat, lon):
+    """One pass: kind, epoch and values per row (GNSS: lat/lon kept aside, fix quality 0 -> (0, 0))."""
+    for j in range(rows.shape[0]):
+        r = rows[j]
+        k = stype[r]
+        kind[j] = k
+        w = values[r]
+        if k == 1:
+            for q in range(6):
+                vals[j, q] = w[q]
+            t_s[j] = w[6]
+        elif k == 2:
+            vals[j, 0] = w[0]
+            vals[j, 1] = w[1]
+            t_s[j] = w[2]
+        elif k == 3:
+            b = 2 if n_int[r] == 2 else 0
+            lat[j] = w[b]
+            lon[j] = w[b + 1]
+            t_s[j] = w[b + 4]
+            fq = w[0] if b == 2 else -1.0
+            vals[j, 0] = 0.0
+            vals[j, 1] = 0.0
+            vals[j, 2] = w[b + 3]
+            vals[j, 3] = fq
+        elif k == 8:  # GROUND TRUTH: the epoch only (initialisations go through TrackFilter)
+            t_s[j] = w[n_int[r] + 4]
 
 
 def pack_rows(dec, rows: np.ndarray, track) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -21,42 +52,23 @@ def pack_rows(dec, rows: np.ndarray, track) -> tuple[np.ndarray, np.ndarray, np.
 
     GNSS lat/lon go to the track's local frame in one vectorised call (fix quality 0 -> (0, 0): the
     filter counts such a fix as "no fix" before looking at the position, as TrackFilter does).
+    GROUND TRUTH rows get kind 8 and their epoch, no values.
     """
     from sfa.batch import NV
 
-    mk = dec.stype[rows]
+    rows = np.ascontiguousarray(rows, dtype=np.int64)
     nm = rows.size
-    kind = mk.astype(np.int64)
+    kind = np.zeros(nm, dtype=np.int64)
+    t_s = np.full(nm, math.nan)
     vals = np.full((nm, NV), math.nan)
-    wire = dec.values[rows]
-    t_s = np.empty(nm)
-    imu = mk == 1
-    vals[imu, 0:6] = wire[imu, 0:6]
-    t_s[imu] = wire[imu, 6]
-    odo = mk == 2
-    vals[odo, 0:2] = wire[odo, 0:2]
-    t_s[odo] = wire[odo, 2]
-    gpsm = mk == 3
-    if np.any(gpsm):
-        gw = wire[gpsm]
-        has_q = dec.n_int[rows[gpsm]] == 2
-        base = np.where(has_q, 2, 0)
-        idx = np.arange(gw.shape[0])
-        lat, lon = gw[idx, base], gw[idx, base + 1]
-        t_s[gpsm] = gw[idx, base + 4]
-        fq = np.where(has_q, gw[:, 0], -1.0)
-        east = np.zeros(gw.shape[0])
-        north = np.zeros(gw.shape[0])
-        use = fq != 0.0
-        if np.any(use):
-            e, nn = track.to_local(lat[use], lon[use])
-            east[use] = np.asarray(e, dtype=np.float64)
-            north[use] = np.asarray(nn, dtype=np.float64)
-        g = np.flatnonzero(gpsm)
-        vals[g, 0] = east
-        vals[g, 1] = north
-        vals[g, 2] = gw[idx, base + 3]
-        vals[g, 3] = fq
+    lat = np.full(nm, math.nan)
+    lon = np.full(nm, math.nan)
+    _pack(dec.stype, dec.n_int, dec.values, rows, kind, t_s, vals, lat, lon)
+    g = np.flatnonzero((kind == 3) & (vals[:, 3] != 0.0))
+    if g.size:
+        e, nn = track.to_local(lat[g], lon[g])
+        vals[g, 0] = np.asarray(e, dtype=np.float64)
+        vals[g, 1] = np.asarray(nn, dtype=np.float64)
     return kind, t_s, vals
 
 

@@ -3,42 +3,54 @@
 ``tools.replay.replay_capture`` drives the listener's pipeline object per datagram (a few thousand
 datagrams per second). On a clean capture almost all of that work is bookkeeping whose outcome is
 known in advance: every stream in order, every measurement dated by its own epoch, the merge
-releasing each measurement at once (``merge.hold_s = 0``), one line hypothesis. :func:`fast_replay`
-checks that this is so and then runs the whole capture in compiled code:
+releasing each measurement at once (``merge.hold_s = 0``). :func:`fast_replay` checks that this is so
+and then runs the capture in compiled code:
 
 1. the pcap is memory-mapped and walked in a numba loop (:mod:`tools.fast_pcap`; classic pcap,
    Ethernet, IPv4, UDP at fixed offsets),
 2. INPUT payloads are decoded in one compiled pass driven by listener.codec's own tables
    (:mod:`tools.fast_decode`); rejected ones get their reason from ``listener.codec`` itself,
-3. the start of the capture (until every stream is past its start-up hold and the filter keeps a
-   single line hypothesis) goes through the exact pipeline, datagram by datagram,
-4. the rest is checked (each stream continues in sequence, no gap, no reordering, epochs present,
-   no GROUND TRUTH re-initialisation), packed into ``sfa.batch`` arrays and stepped through the same
-   kernels as the per-message filter (:mod:`tools.fast_loop`), from the exact pipeline's filter state,
-5. the result is refused after the fact if the estimate came within the junction window of a
-   junction of its line (where the per-message filter would have spawned branch hypotheses).
+3. the start of the capture goes through the exact pipeline, datagram by datagram, only until every
+   sender's stream has started and nothing is held (a handful of datagrams),
+4. the rest is checked (each stream continues in sequence, no gap, no reordering, epochs present),
+   the STROBE clock is advanced in compiled code (:mod:`tools.fast_clock`: the sensor-set "now" of
+   every arrival, for the listener's ``epoch_future`` and stale-output rules), the measurements are
+   packed into ``sfa.batch`` arrays,
+5. the filter runs from the exact pipeline's filter object: compiled (:func:`tools.fast_loop.run_segment`:
+   the kernels plus TrackFilter's scoring, pruning and standstill reversal hypotheses) while every
+   hypothesis is on one line, and ``TrackFilter.process`` itself for the measurements where the filter
+   branches at a junction, keeps hypotheses on several lines, re-initialises (GROUND TRUTH) or applies
+   its time-jump rule; the state goes back and forth between the two through the filter object.
 
 When any condition fails it returns None (and :func:`try_fast_replay` says why): the caller runs the
 exact replay instead. What the result does not simulate: retransmissions of the OBCU link after the
 exact prefix (the fast path returns new estimates only; retransmissions never change a new
 estimate), and link state transitions. Everything else (estimates, per-measurement outcomes and NIS,
 GNSS fixes, input/sequencing/clock/filter counters) equals the exact replay's, which
-tests/test_fast_replay.py checks field by field.
+tests/test_fast_replay.py checks field by field, on a capture with junctions too.
 """
 
 from __future__ import annotations
 
 import math
 import sys
+import time
 from collections import Counter, deque
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
+from numba import njit
+
+from listener.pipeline import to_measurement
+from sfa import layout as L
+from sfa.layout import Outcome
+from tools.fast_loop import STOP_UNDONE, interp_many, run_segment
 
 #: datagrams replayed through the exact pipeline at most before the hand-over to compiled code
 MAX_EXACT_PREFIX = 200_000
 _KIND_NAME = {1: "imu", 2: "odo", 3: "gps", 8: "init"}
 _TYPE_NAME = {1: "imu", 2: "odometer", 3: "gps", 8: "ground_truth", 9: "strobe", 10: "stop"}
+_KIND_OBJ = np.array([_KIND_NAME.get(k, "?") for k in range(16)], dtype=object)  # Update.kind by code
 
 
 @dataclass(frozen=True)
@@ -48,7 +60,9 @@ class FastReplayInfo:
     used: bool  #: True: the result came from the fast path
     reason: str  #: why the exact replay is needed ("" when used)
     exact_prefix: int = 0  #: datagrams that went through the exact pipeline first
-    compiled: int = 0  #: datagrams handled by the compiled path
+    compiled: int = 0  #: datagrams handled in compiled code after the prefix (filter step included)
+    python_steps: int = 0  #: measurements after the prefix stepped by TrackFilter.process (junctions)
+    timing: dict = field(default_factory=dict)  #: seconds per stage of this run (wall clock)
 
 
 def fast_replay(capture_path, track, options=None):
@@ -145,11 +159,10 @@ class _Prefix:
         self.record(pipe.receive(payload, addr, t), t)
 
     def ready(self) -> bool:
-        """Hand-over point: one hypothesis, nothing held in sequence buffers, merge or undated queue."""
+        """Hand-over point: nothing held in sequence buffers, merge or undated queue, no stream irregular
+        (the filter may be in any state: the fast path runs TrackFilter itself where it must)."""
         pipe = self.pipe
-        if pipe.stopped or not pipe.filter.initialised or pipe.streams.next_deadline() is not None:
-            return False
-        if pipe.filter.estimate().hypotheses != 1:
+        if pipe.stopped or pipe.streams.next_deadline() is not None:
             return False
         m = pipe.metrics()
         seq = m["sequencing"]
@@ -182,17 +195,70 @@ def _gps_of(dec, i):
     return float(v[ni]), float(v[ni + 1]), fq
 
 
+# ---------------------------------------------------------------------------------------- streams
+@njit(cache=True)
+def _stream_table(key, ok, n, cap):
+    """Distinct stream keys of the valid datagrams [0, n) and the row of each one's first datagram
+    (at most ``cap`` streams: returns -1 as the count beyond that)."""
+    keys = np.empty(cap, dtype=np.int64)
+    first = np.empty(cap, dtype=np.int64)
+    m = 0
+    for r in range(n):
+        if not ok[r]:
+            continue
+        k = key[r]
+        found = False
+        for q in range(m):
+            if keys[q] == k:
+                found = True
+                break
+        if not found:
+            if m == cap:
+                return keys, first, -1
+            keys[m] = k
+            first[m] = r
+            m += 1
+    return keys, first, m
+
+
+@njit(cache=True)
+def _first_break(key, ok, seq, h, n, keys, m):
+    """First valid row >= h whose SEQ does not continue its stream by exactly one (16 bit), or -1."""
+    last = np.full(m, -1, dtype=np.int64)
+    for r in range(n):
+        if not ok[r]:
+            continue
+        q = 0
+        while keys[q] != key[r]:
+            q += 1
+        if r >= h and (last[q] < 0 or seq[r] != (last[q] + 1) & 0xFFFF):
+            return r
+        last[q] = seq[r]
+    return -1
+
+
 # ---------------------------------------------------------------------------------------- main path
 def _replay_scanned(scan, track, options):
     from listener.codec import DecodeError, decode_input
+    from tools.fast_clock import clock_supported, replay_strobes, sensor_now
     from tools.fast_decode import decode_batch
     from tools.fast_pack import EPOCH_DOUBLES
     from tools.fast_pcap import SKIP_REASONS, ipv4_text
+
+    timing = {}
+    tick = time.perf_counter()
+
+    def lap(name: str) -> None:
+        nonlocal tick
+        now = time.perf_counter()
+        timing[name] = timing.get(name, 0.0) + now - tick
+        tick = now
 
     dec = decode_batch(scan.data, scan.offset, scan.length)
     n_all = scan.time_s.size
     stop_rows = np.flatnonzero(dec.ok & (dec.stype == 10))
     n = int(stop_rows[0]) + 1 if stop_rows.size else n_all  # the replay ends at a released STOP
+    lap("decode")
 
     def payload(i: int) -> bytes:
         o = int(scan.offset[i])
@@ -204,6 +270,12 @@ def _replay_scanned(scan, track, options):
     per_type = options.config.input.per_type_sequence
     type_part = dec.stype & 0xFF if per_type else 0
     key_all = (scan.src_ip.astype(np.int64) << 24) | (scan.src_port << 8) | type_part
+    keys, first, m_streams = _stream_table(key_all, dec.ok, n, options.config.input.max_streams)
+    if m_streams < 0:
+        return None, _info(False, "more streams than the listener tracks", 0)
+    # the exact pipeline runs until every stream has started (start-up hold released)
+    min_prefix = int(first[:m_streams].max()) + 1 if m_streams else 0
+    lap("stream table")
 
     # 1. exact prefix
     prefix = _Prefix(track, options)
@@ -215,130 +287,129 @@ def _replay_scanned(scan, track, options):
         h += 1
         if prefix.pipe.stopped:
             break
-        if (h & 63) == 0 and prefix.ready():
+        if h >= min_prefix and prefix.ready():
             break
     pipe = prefix.pipe
+    lap("exact prefix")
     if pipe.stopped or h >= n:
         why = "the capture ended during the exact prefix"
         return None, _info(False, why, h)
     if not prefix.ready():
-        why = f"no hand-over point in the first {limit} datagrams (hypotheses or holds)"
+        why = f"no hand-over point in the first {limit} datagrams (sequence or merge holds)"
         return None, _info(False, why, h)
 
-    # 2. the compiled part must be a continuation the pipeline would release at once, in order
+    # 2. the rest must be a continuation the pipeline releases at once, in order
     rows = np.arange(h, n)
-    ok = dec.ok[rows]
-    st = dec.stype[rows]
-    if np.any(ok & (st == 8)):
-        return None, _info(False, "GROUND TRUTH after the start (re-initialisation)", h)
-    meas = ok & ((st == 1) | (st == 2) | (st == 3))
-    for t, nd in EPOCH_DOUBLES.items():
-        if np.any(ok & (st == t) & (dec.n_double[rows] != nd)):
+    ok = dec.ok[h:n]
+    st = dec.stype[h:n]
+    nd = dec.n_double[h:n]
+    for t, need in (*EPOCH_DOUBLES.items(), (8, 5)):
+        if np.any(ok & (st == t) & (nd != need)):
             return None, _info(False, f"{_TYPE_NAME[t]} datagrams without epoch (need STROBE dating)", h)
     if np.any(ok & (st == 10) & (rows != n - 1)):  # pragma: no cover - n ends at the first STOP
         return None, _info(False, "STOP before the end", h)
-    why = _check_sequences(key_all, dec, h, n, options)
-    if why:
+    if _first_break(key_all, dec.ok, dec.seq, h, n, keys, m_streams) >= 0:
+        why = "a stream with a gap, a duplicate or reordering (needs the sequence buffer)"
         return None, _info(False, why, h)
+    if not clock_supported():
+        return None, _info(False, "Python >= 3.12 sums floats compensated (STROBE clock fit)", h)
+    lap("checks")
 
-    # 3. pack and run
-    from sfa import layout as L
+    # 3. the STROBE clock: the sensor-set "now" at every measurement's arrival
+    srows = rows[ok & (st == 9)]
+    params = replay_strobes(pipe.clock, dec.values[srows, 0], scan.time_s[srows])
+    meas_all = rows[ok & ((st == 1) | (st == 2) | (st == 3) | (st == 8))]
+    sn = sensor_now(params[np.searchsorted(srows, meas_all)], scan.time_s[meas_all])
+    lap("clock")
+
     from tools.fast_pack import pack_rows
 
-    filt = pipe.filter
-    try:  # the state arrays of the single hypothesis (ready() checked there is one)
-        hyp = filt._hyps[filt._reported]
-        line = hyp.line
-        x, P, aux, cnt, mem = hyp.x, hyp.P, hyp.aux, hyp.cnt, hyp.mem  # advanced in place
-    except (AttributeError, IndexError):
-        return None, _info(False, "the filter does not expose its hypothesis arrays", h)
-    mrows = rows[meas]
-    kind, t_s, vals = pack_rows(dec, mrows, track)
+    kind_all, t_all, vals_all = pack_rows(dec, meas_all, track)
+    future = t_all > sn + options.config.clock.max_future_s  # Pipeline._date: epoch_future rejection
+    if np.any(future):
+        keep = ~future
+        mrows, kind, t_s, vals, sn = meas_all[keep], kind_all[keep], t_all[keep], vals_all[keep], sn[keep]
+    else:
+        mrows, kind, t_s, vals = meas_all, kind_all, t_all, vals_all
+    stale_before = options.config.link.max_output_age_s + options.config.merge.hold_s
+    fresh_min = sn - stale_before  # NaN before the first STROBE: never stale
     nm = mrows.size
+    lap("pack")
 
-    why = _time_jump_reason(filt, aux, t_s)
-    if why:
-        return None, _info(False, why, h)
-
-    from tools.fast_loop import interp_many, run_replay_loop
-
-    cfg = filt.config.to_array()
+    # 4. the filter: compiled while its hypotheses share one line, TrackFilter.process otherwise
+    filt = pipe.filter
     last = pipe.last_estimate
-    last_epoch = -math.inf if last is None else float(last.epoch_s)
-    last_s = math.nan if last is None else float(last.arc_length_m)
-    out_f = np.zeros((nm, 5))
-    out_i = np.zeros((nm, 4), dtype=np.int64)
-    run_replay_loop(
-        kind,
-        t_s,
-        vals,
-        x,
-        P,
-        aux,
-        cnt,
-        mem,
-        cfg,
-        line.s_m,
-        line.east_m,
-        line.north_m,
-        line.grade,
-        line.curvature_inv_m,
-        last_epoch,
-        last_s,
-        out_f,
-        out_i,
+    state = _FilterRun(
+        filt,
+        nm,
+        -math.inf if last is None else float(last.epoch_s),
+        math.nan if last is None else float(last.arc_length_m),
     )
-
-    # 4. refuse after the fact near junctions of this line (the exact filter would branch there)
-    why = _junction_reason(filt, line, out_f[:, 1])
-    if why:
-        return None, _info(False, why, h)
+    out_f, out_i = state.out_f, state.out_i
+    i = 0
+    while i < nm:
+        j = state.compiled(i, kind, t_s, vals, fresh_min)
+        if j >= nm:
+            break
+        i = j
+        r = int(mrows[i])
+        msg = decode_input(payload(r))
+        upd = filt.process(to_measurement(msg, msg.epoch))
+        state.python_row(i, upd, fresh_min[i])
+        i += 1
+    lap("filter")
 
     # 5. the result, as tools.replay builds it
     from tools.replay import ESTIMATE_COLUMNS, ReplayResult
 
-    z = float(cfg[L.K_Z_INTERVAL])
-    d = float(aux[L.A_DIR])
+    z = float(filt.config.to_array()[L.K_Z_INTERVAL])
     send = out_i[:, 3] == 1
-    s_out = out_f[send, 1]
-    sig_out = out_f[send, 3]
-    lat_out = (
-        interp_many(line.s_m, line.lat_deg, s_out, np.ones(s_out.size, dtype=np.bool_))
-        if line.lat_deg is not None
-        else np.full(s_out.size, math.nan)
-    )
-    lon_out = (
-        interp_many(line.s_m, line.lon_deg, s_out, np.ones(s_out.size, dtype=np.bool_))
-        if line.lon_deg is not None
-        else np.full(s_out.size, math.nan)
-    )
+    sent = np.flatnonzero(send)
+    k_out = sent.size
+    cf = np.compress(send, out_f, axis=0)  # (k_out, 5): one pass, then contiguous-enough columns
+    ci = np.compress(send, out_i, axis=0)
+    s_out = cf[:, 1]
+    sig_out = cf[:, 3]
+    line_out = state.line_row[sent]
+    lat_out = np.full(k_out, math.nan)
+    lon_out = np.full(k_out, math.nan)
+    lines = [int(line_out[0])] if k_out and line_out.min() == line_out.max() else np.unique(line_out).tolist()
+    for lid in lines:
+        if lid < 0:
+            continue
+        sel = slice(None) if len(lines) == 1 else line_out == lid
+        s_sel = s_out[sel]
+        ln = filt._line_arrays(int(lid))
+        if ln.lat_deg is not None:
+            valid = np.ones(s_sel.size, dtype=np.bool_)
+            lat_out[sel] = interp_many(ln.s_m, ln.lat_deg, s_sel, valid)
+            lon_out[sel] = interp_many(ln.s_m, ln.lon_deg, s_sel, valid)
     link = pipe.link
     start_seq = options.config.link.start_seq
-    k_out = int(send.sum())
     seq_out = (start_seq + link.outputs + np.arange(k_out)) & 0xFFFF
     fast_cols = {
-        "epoch": out_f[send, 0],
+        "epoch": cf[:, 0],
         "arc_length": s_out,
         "seq": seq_out.astype(np.int64),
         "retransmit": np.zeros(k_out, dtype=np.int64),
-        "arrival": scan.time_s[mrows[send]],
-        "speed": d * out_f[send, 2],
+        "arrival": scan.time_s[mrows[sent]],
+        "speed": cf[:, 2],
         "sigma": sig_out,
         "interval_low": s_out - z * sig_out,
         "interval_high": s_out + z * sig_out,
-        "status": out_i[send, 1].astype(np.int64),
-        "line_id": np.full(k_out, line.line_id, dtype=np.int64),
+        "status": ci[:, 1],
+        "line_id": line_out,
         "lat": lat_out,
         "lon": lon_out,
     }
     int_cols = ("seq", "retransmit", "status", "line_id")
     est = {}
-    for i, name in enumerate(ESTIMATE_COLUMNS):
+    for c_i, name in enumerate(ESTIMATE_COLUMNS):
         dtype = np.int64 if name in int_cols else float
-        head = np.array([r[i] for r in prefix.est_rows], dtype=dtype)
-        est[name] = np.concatenate([head, fast_cols[name].astype(dtype)])
+        head = np.array([r[c_i] for r in prefix.est_rows], dtype=dtype)
+        est[name] = np.concatenate([head, fast_cols[name].astype(dtype, copy=False)])
 
-    kinds = np.array([_KIND_NAME[int(k)] for k in kind], dtype=object) if nm else np.array([], dtype=object)
+    kinds = _KIND_OBJ[kind] if nm else np.array([], dtype=object)
     updates = {
         "t": np.concatenate([np.array([u[0] for u in prefix.upd], dtype=float), t_s]),
         "kind": np.concatenate([np.array([u[1] for u in prefix.upd], dtype=object), kinds]),
@@ -346,26 +417,27 @@ def _replay_scanned(scan, track, options):
         "nis": np.concatenate([np.array([u[3] for u in prefix.upd], dtype=float), out_f[:, 4]]),
     }
     grows = rows[ok & (st == 3)]
-    g_lat, g_lon, g_fq = [], [], []
-    for i in grows:
-        la, lo, q = _gps_of(dec, int(i))
-        g_lat.append(la)
-        g_lon.append(lo)
-        g_fq.append(q)
+    gv = dec.values[grows]
+    has_q = dec.n_int[grows] == 2
+    gi = np.arange(grows.size)
+    base = np.where(has_q, 2, 0)
     gps = {
         "t": np.concatenate([np.array([g[0] for g in prefix.gps_rows], dtype=float), scan.time_s[grows]]),
-        "lat": np.concatenate([np.array([g[1] for g in prefix.gps_rows], dtype=float), np.array(g_lat)]),
-        "lon": np.concatenate([np.array([g[2] for g in prefix.gps_rows], dtype=float), np.array(g_lon)]),
+        "lat": np.concatenate([np.array([g[1] for g in prefix.gps_rows], dtype=float), gv[gi, base]]),
+        "lon": np.concatenate([np.array([g[2] for g in prefix.gps_rows], dtype=float), gv[gi, base + 1]]),
         "fix_quality": np.concatenate(
-            [np.array([g[3] for g in prefix.gps_rows], dtype=np.int64), np.array(g_fq, dtype=np.int64)]
+            [
+                np.array([g[3] for g in prefix.gps_rows], dtype=np.int64),
+                np.where(has_q, gv[:, 0], -1.0).astype(np.int64),
+            ]
         ),
     }
+    lap("result columns")
 
     # 6. counters: the pipeline's own objects advanced as the exact replay would have advanced them
     c = pipe.counters
     c["received"] += rows.size
-    bad = rows[~ok]
-    for i in bad:
+    for i in rows[~ok]:
         try:
             decode_input(payload(int(i)))
         except DecodeError as exc:
@@ -373,36 +445,41 @@ def _replay_scanned(scan, track, options):
             pipe.rejected[str(exc.reason)] += 1
         else:  # pragma: no cover - the compiled pass rejected what the codec accepts: a bug
             raise AssertionError(f"fast decoder rejected a valid datagram at index {int(i)}")
-    types = Counter(int(t) for t in st[ok])
-    for t, k in types.items():
-        pipe.by_type[_TYPE_NAME.get(t, str(t))] += k
-    for i in rows[ok & (st == 9)]:
-        ts_strobe = float(dec.values[i, 0])
-        pipe.clock.on_strobe(ts_strobe, float(scan.time_s[i]))
-    c["strobes"] += types.get(9, 0)
+    n_future = int(future.sum())
+    if n_future:
+        c["rejected"] += n_future
+        pipe.rejected["epoch_future"] += n_future
+    types = np.bincount(st[ok], minlength=16)
+    for t in np.flatnonzero(types).tolist():
+        pipe.by_type[_TYPE_NAME.get(t, str(t))] += int(types[t])
+    c["strobes"] += int(types[9])
     c["dated_by_epoch"] += nm
     c["processed"] += nm
-    from sfa.layout import Outcome
-
-    for (kd, oc), k in Counter(zip(kind.tolist(), out_i[:, 0].tolist(), strict=True)).items():
-        c[f"outcome_{_KIND_NAME[kd]}_{Outcome(oc).name.lower()}"] += k
+    if state.stale[0]:
+        c["stale_not_sent"] += int(state.stale[0])
+    pairs = np.bincount(kind * 16 + out_i[:, 0], minlength=16 * 16) if nm else np.zeros(0, dtype=np.int64)
+    for code in np.flatnonzero(pairs).tolist():
+        kd, oc = divmod(code, 16)
+        c[f"outcome_{_KIND_NAME[kd]}_{Outcome(oc).name.lower()}"] += int(pairs[code])
     stopped = bool(stop_rows.size)
     if stopped:
         c["stops"] += 1
     if k_out:
-        j = int(np.flatnonzero(send)[-1])
-        pipe.last_estimate = _estimate_row(
-            filt, line, out_f[j], out_i[j], d, z, float(lat_out[-1]), float(lon_out[-1])
-        )
+        j = int(sent[-1])
+        pipe.last_estimate = state.estimate_of(j, z, float(lat_out[-1]), float(lon_out[-1]))
     metrics = pipe.metrics()
     seqm = metrics["sequencing"]
     n_valid = int(ok.sum())
     for k in ("received", "released", "in_order"):
         seqm[k] += n_valid
     metrics["link"]["outputs"] += k_out
+    compiled = int(rows.size) - state.python_steps
     metrics["fast_replay"] = {
         "exact_prefix_datagrams": h,
-        "compiled_datagrams": int(rows.size),
+        "compiled_datagrams": compiled,
+        "python_filter_steps": state.python_steps,
+        "handed_back_at_junctions": state.undone,
+        "compiled_fraction": compiled / n,
         "retransmissions_simulated": "exact prefix only",
     }
     last_frame = int(scan.frame_index[n - 1]) if stopped else scan.frames
@@ -420,74 +497,188 @@ def _replay_scanned(scan, track, options):
         skipped_sensor=0,
     )
     result.capture = {"frames": last_frame, "datagrams": n, "skipped": dict(skipped)}
-    return result, _info(True, "", h, int(rows.size))
+    lap("counters")
+    return result, _info(True, "", h, compiled, state.python_steps, timing)
 
 
-def _info(used: bool, reason: str, prefix: int, compiled: int = 0) -> FastReplayInfo:
-    return FastReplayInfo(used, reason, prefix, compiled)
+def _info(used: bool, reason: str, prefix: int, compiled: int = 0, python: int = 0, timing=None):
+    return FastReplayInfo(used, reason, prefix, compiled, python, dict(timing or {}))
 
 
-def _check_sequences(key_all, dec, h, n, options) -> str:
-    """Every stream of the compiled part continues its prefix sequence with no gap or reordering."""
-    ok_pre = dec.ok[:h]
-    last_seq: dict[int, int] = {}
-    pk = key_all[:h][ok_pre]
-    ps = dec.seq[:h][ok_pre]
-    for k, s in zip(pk.tolist(), ps.tolist(), strict=True):
-        last_seq[k] = s
-    if len(last_seq) > options.config.input.max_streams:
-        return "more streams than the listener tracks"
-    ok = dec.ok[h:n]
-    keys = key_all[h:n][ok]
-    seqs = dec.seq[h:n][ok]
-    if keys.size == 0:
-        return ""
-    uniq, inv = np.unique(keys, return_inverse=True)
-    for j, k in enumerate(uniq.tolist()):
-        if k not in last_seq:
-            return "a new sender stream after the start (start-up hold)"
-        s = seqs[inv == j]
-        first_ok = s[0] == (last_seq[k] + 1) & 0xFFFF
-        if not first_ok or np.any((np.diff(s) & 0xFFFF) != 1):
-            return "a stream with a gap, a duplicate or reordering (needs the sequence buffer)"
-    return ""
+class _FilterRun:
+    """The filter over the packed measurements: compiled segments (tools.fast_loop.run_segment) and the
+    rows TrackFilter.process handles, with the listener's output rule over both."""
+
+    def __init__(self, filt, nm: int, last_epoch: float, last_s: float) -> None:
+        cfg = filt.config
+        self.filt = filt
+        self.cfg = cfg.to_array()
+        self.cap = 2 * int(cfg.max_hypotheses) + 2  # a reversal may double the hypotheses before pruning
+        self.out_f = np.zeros((nm, 5))
+        self.out_i = np.zeros((nm, 4), dtype=np.int64)
+        self.line_row = np.full(nm, -1, dtype=np.int64)
+        self.last = np.array([last_epoch, last_s])
+        self.stale = np.zeros(1, dtype=np.int64)
+        self.python_steps = 0
+        self.undone = 0  #: measurements handed to TrackFilter after being undone (branches, scores)
+        self.python_est: dict[int, object] = {}
+        self._junc: dict = {}
+        shape = (self.cap,)
+        self.X = np.zeros((*shape, L.NX))
+        self.P = np.zeros((*shape, L.NX, L.NX))
+        self.A = np.zeros((*shape, L.NAUX))
+        self.C = np.zeros((*shape, L.NCNT), dtype=np.int64)
+        self.M = np.zeros((*shape, L.NMEM))
+        self.snap = (
+            np.zeros_like(self.X),
+            np.zeros_like(self.P),
+            np.zeros_like(self.A),
+            np.zeros_like(self.C),
+            np.zeros_like(self.M),
+        )
+        self.order = np.zeros(self.cap, dtype=np.int64)
+        self.ns = np.zeros(2, dtype=np.int64)
+
+    def _entry(self):
+        """(line, spawned) when the compiled loop can take the filter as it is, else None."""
+        f = self.filt
+        hyps = f._hyps
+        if not hyps or hyps[0].aux[L.A_INIT] == 0.0 or len(hyps) > self.cap // 2:
+            return None
+        if not math.isnan(f._jump_candidate):
+            return None
+        rep = hyps[f._reported]
+        line, spawned = rep.line, rep.spawned
+        for h in hyps:
+            if h.line.line_id != line.line_id or h.spawned != spawned or not math.isfinite(h.aux[L.A_LOGLIK]):
+                return None
+        return line, spawned
+
+    def _junctions(self, line, spawned) -> np.ndarray:
+        key = (line.line_id, spawned)
+        arr = self._junc.get(key)
+        if arr is None:
+            entry = self.filt._junction_map().get(line.line_id)
+            items = [] if entry is None else entry[1]
+            arr = np.array([s for k, s, _, _ in items if k not in spawned], dtype=np.float64)
+            self._junc[key] = arr
+        return arr
+
+    def compiled(self, i: int, kind, t_s, vals, fresh_min) -> int:
+        """Run compiled from row i as far as it goes; returns the first row not processed."""
+        from sfa.filter import _Hypothesis
+
+        entry = self._entry()
+        if entry is None:
+            return i
+        line, spawned = entry
+        f = self.filt
+        cfg = f.config
+        hyps = f._hyps
+        for q, h in enumerate(hyps):
+            self.X[q] = h.x
+            self.P[q] = h.P
+            self.A[q] = h.aux
+            self.C[q] = h.cnt
+            self.M[q] = h.mem
+            self.order[q] = q
+        self.ns[0] = len(hyps)
+        self.ns[1] = f._reported
+        sx, sp, sa, sc, sm = self.snap
+        j, why = run_segment(
+            kind,
+            t_s,
+            vals,
+            i,
+            self.X,
+            self.P,
+            self.A,
+            self.C,
+            self.M,
+            sx,
+            sp,
+            sa,
+            sc,
+            sm,
+            self.order,
+            self.ns,
+            self.cfg,
+            line.s_m,
+            line.east_m,
+            line.north_m,
+            line.grade,
+            line.curvature_inv_m,
+            float(line.length_m),
+            self._junctions(line, spawned),
+            float(cfg.junction_window_m),
+            float(cfg.max_time_jump_s),
+            float(cfg.loglik_nis_cap),
+            float(cfg.prune_log_ratio),
+            float(cfg.switch_log_ratio),
+            int(cfg.max_hypotheses),
+            bool(cfg.reversal_hypotheses),
+            fresh_min,
+            self.last,
+            self.out_f,
+            self.out_i,
+            self.stale,
+        )
+        j = int(j)
+        if why == STOP_UNDONE:
+            self.undone += 1
+        if j > i:
+            self.line_row[i:j] = line.line_id
+            new = []
+            for q in range(int(self.ns[0])):
+                c = int(self.order[q])
+                new.append(
+                    _Hypothesis(
+                        line,
+                        self.X[c].copy(),
+                        self.P[c].copy(),
+                        self.A[c].copy(),
+                        self.C[c].copy(),
+                        spawned,
+                        self.M[c].copy(),
+                    )
+                )
+            f._hyps = new
+            f._reported = int(self.ns[1])
+        return j
+
+    def python_row(self, i: int, upd, fresh_min: float) -> None:
+        """Row i went through TrackFilter.process: record it and apply the output rule."""
+        self.python_steps += 1
+        self.out_f[i, 4] = math.nan if upd.nis is None else float(upd.nis)
+        self.out_i[i, 0] = int(upd.outcome)
+        est = self.filt.estimate()
+        epoch, s = est.epoch_s, est.arc_length_m
+        self.out_f[i, 0:4] = (epoch, s, est.speed_mps, est.sigma_s_m)
+        self.out_i[i, 1] = int(est.status)
+        self.line_row[i] = -1 if est.line_id is None else est.line_id
+        send = 0
+        if math.isfinite(epoch) and math.isfinite(s):
+            last = self.last
+            if epoch < fresh_min:
+                self.stale[0] += 1
+            elif epoch >= last[0] and not (epoch == last[0] and s == last[1]):
+                send = 1
+                last[0] = epoch
+                last[1] = s
+                self.python_est[i] = est
+        self.out_i[i, 3] = send
+
+    def estimate_of(self, i: int, z: float, lat: float, lon: float):
+        """The Estimate the listener holds after the output of row i (for the metrics snapshot)."""
+        est = self.python_est.get(i)
+        if est is not None:
+            return est
+        return _estimate_row(self.filt, int(self.line_row[i]), self.out_f[i], self.out_i[i], z, lat, lon)
 
 
-def _time_jump_reason(filt, aux, t_s: np.ndarray) -> str:
-    """The per-message filter rejects a measurement far ahead of its state unless the next confirms the
-    gap (TrackFilter._is_time_jump); the compiled loop does not: any forward gap of half that size or
-    more goes to the exact replay (the margin covers a state time behind the newest epoch)."""
-    limit = getattr(filt.config, "max_time_jump_s", None)
-    if limit is None or t_s.size == 0:
-        return ""
-    from sfa import layout as L
-
-    newest = np.maximum.accumulate(np.concatenate([[float(aux[L.A_T_STATE])], t_s]))[:-1]
-    gaps = t_s - newest
-    if np.any(gaps > 0.5 * float(limit)):
-        return f"a forward time jump of {float(np.max(gaps)):.1f} s (the filter's time-jump rule)"
-    return ""
-
-
-def _junction_reason(filt, line, s_m: np.ndarray) -> str:
-    try:
-        jmap = filt._junction_map()
-    except AttributeError:
-        return "the filter does not expose its junction map"
-    entry = jmap.get(line.line_id)
-    if entry is None or s_m.size == 0:
-        return ""
-    window = filt.config.junction_window_m
-    lo = float(np.nanmin(s_m)) - window - 1.0
-    hi = float(np.nanmax(s_m)) + window + 1.0
-    near = [s for s in entry[0] if lo <= s <= hi]
-    if near:
-        return f"the run passes a junction of line {line.line_id} (s = {near[0]:.1f} m): branch hypotheses"
-    return ""
-
-
-def _estimate_row(filt, line, f, i, d, z, lat, lon):
-    """The Estimate the listener holds as its last output (for the metrics snapshot)."""
+def _estimate_row(filt, line_id: int, f, i, z, lat, lon):
+    """The Estimate the listener holds as its last output (for the metrics snapshot: status, reasons,
+    line), from a compiled row."""
     from sfa.filter import Estimate
     from sfa.layout import FilterStatus, reasons_from_bits
 
@@ -495,18 +686,16 @@ def _estimate_row(filt, line, f, i, d, z, lat, lon):
     return Estimate(
         epoch_s=float(f[0]),
         arc_length_m=s,
-        speed_mps=float(d * f[2]),
+        speed_mps=float(f[2]),
         sigma_s_m=sig,
         interval_low_m=s - z * sig,
         interval_high_m=s + z * sig,
         status=FilterStatus(int(i[1])),
         reasons=reasons_from_bits(int(i[2])),
-        line_id=line.line_id,
+        line_id=None if line_id < 0 else line_id,
         lat_deg=lat,
         lon_deg=lon,
         confidence=filt.config.confidence,
-        hypotheses=1,
-        direction=int(d),
     )
 
 

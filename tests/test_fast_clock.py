@@ -1,0 +1,88 @@
+"""tools.fast_clock: the compiled STROBE clock equals listener.clock.StrobeClock, STROBE by STROBE.
+
+Seeded sequences with arrival jitter, clock skew, a confirmed step (reset), a lone corrupted timestamp
+(unconfirmed), non-finite values, and a window that overflows; compared after every STROBE (the state
+the fast replay uses for the sensor-set "now") and at the end (every field of the clock object).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from listener.clock import StrobeClock
+from listener.config import ClockConfig
+from tools.fast_clock import clock_supported, replay_strobes, sensor_now
+
+pytestmark = pytest.mark.skipif(
+    not clock_supported(), reason="Python >= 3.12: the fast path uses StrobeClock"
+)
+
+
+def _strobes(seed: int, n: int) -> tuple[np.ndarray, np.ndarray]:
+    rng = np.random.default_rng(seed)
+    now = 1000.0 + np.arange(n) * 1.0 + rng.uniform(0.0, 0.02, n)  # 1 Hz, up to 20 ms delay jitter
+    skew = rng.uniform(-2e-4, 2e-4)
+    ts = 1.7e9 + (now - 1000.0) * (1.0 + skew) - rng.uniform(0.0, 0.004, n)
+    ts[n // 3 :] += 5.0  # a clock step, confirmed by the next STROBE: a reset
+    ts[n // 2] += 40.0  # one corrupted timestamp: unconfirmed, not believed
+    ts[n // 2 + 7] = math.nan
+    now[n // 2 + 9] = math.inf
+    return ts, now
+
+
+def _state(clock: StrobeClock) -> tuple:
+    return (
+        list(clock._samples),
+        clock._slope,
+        clock._ref_now,
+        clock._intercept,
+        clock.resets,
+        clock.strobes,
+        clock.unconfirmed,
+        clock._candidate,
+        clock.synced,
+    )
+
+
+@pytest.mark.parametrize("seed", [1, 2, 3])
+def test_compiled_clock_equals_the_listener_clock(seed):
+    ts, now = _strobes(seed, 400)  # more than the 120-STROBE window
+    cfg = ClockConfig()
+    ref = StrobeClock(cfg)
+    fast = StrobeClock(cfg)
+    head = 25  # the fast path starts from a clock the exact prefix has already fed
+    for k in range(head):
+        ref.on_strobe(float(ts[k]), float(now[k]))
+        fast.on_strobe(float(ts[k]), float(now[k]))
+    params = replay_strobes(fast, ts[head:], now[head:])
+    probe = now[head:] + 0.37  # a datagram arriving between this STROBE and the next
+    expected = []
+    for k in range(head, ts.size):
+        ref.on_strobe(float(ts[k]), float(now[k]))
+        got = ref.to_sensor_time(float(probe[k - head]))
+        expected.append(math.nan if got is None else got)
+    got = sensor_now(params[1:], probe)
+    np.testing.assert_array_equal(got, np.array(expected))  # bit for bit, NaN where not synced
+    assert _state(fast) == _state(ref)
+    assert ref.resets >= 1 and ref.unconfirmed >= 1  # the sequence exercised both rules
+
+
+def test_from_a_fresh_clock_and_nothing_to_do():
+    cfg = ClockConfig(window_strobes=16)
+    ts, now = _strobes(7, 60)
+    ref, fast = StrobeClock(cfg), StrobeClock(cfg)
+    empty = replay_strobes(fast, np.zeros(0), np.zeros(0))
+    assert empty.shape == (1, 4) and empty[0, 0] == 0.0
+    params = replay_strobes(fast, ts, now)
+    for k in range(ts.size):
+        ref.on_strobe(float(ts[k]), float(now[k]))
+        assert (params[k + 1, 1], params[k + 1, 2], params[k + 1, 3]) == (
+            ref._intercept,
+            ref._slope,
+            ref._ref_now,
+        )
+    assert _state(fast) == _state(ref)
+    assert fast.to_sensor_time(now[-1] + 0.5) == ref.to_sensor_time(now[-1] + 0.5)
