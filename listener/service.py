@@ -158,6 +158,7 @@ class ListenerService:
         auth = pipeline.auth
         now = loop.time()
         drain = False  # a rejection was the last thing the pipeline saw: it drains the merge at `now`
+        tally: dict[str, int] = {}  # early rejections of this batch by reason, added to the counters once
         for _ in range(self.cfg.input.batch_datagrams):
             try:
                 n, addr = sock.recvfrom_into(buf)
@@ -169,17 +170,19 @@ class ListenerService:
             if not pipeline.stopped:
                 reason = early_reject_reason(buf, n) if auth is None else auth.precheck_input(buf, n)
                 if reason is not None:
-                    counters = pipeline.counters
-                    counters["received"] += 1
-                    counters["rejected"] += 1
-                    pipeline.rejected[reason] += 1
-                    self.counters["early_rejected"] += 1
+                    tally[reason] = tally.get(reason, 0) + 1
                     drain = True
                     continue
             self._send(pipeline.receive(bytes(view[:n]), addr, now))
             drain = False
             if pipeline.stopped:
                 self._finish("stop datagram")
+        if tally:
+            total = sum(tally.values())
+            pipeline.counters["received"] += total
+            pipeline.counters["rejected"] += total
+            pipeline.rejected.update(tally)  # Counter.update adds
+            self.counters["early_rejected"] += total
         if drain and not pipeline.stopped:
             # Pipeline.receive ends every rejection with a drain of the merge at `now`; handle_timer
             # does that drain (and only runs timers already due), once per batch instead of per datagram
