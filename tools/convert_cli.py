@@ -1,7 +1,8 @@
 """``sfa convert``: real sensor logs -> capture.pcap, track.db (+ truth.csv) for ``sfa replay``.
 
     sfa convert smartloc [SRC_DIR] -o OUT_DIR [--gnss synthetic|spp] [--seed N] [--gps-sigma M] [--evaluate]
-    sfa convert dresden [SRC.csv] -o OUT_DIR [--speed-sigma S] [--latency S] [--evaluate]
+    sfa convert dresden [SRC.csv] -o OUT_DIR [--speed-sigma S] [--latency S] [--position-lead S] [--evaluate]
+                        [--eval-gps-gap START:END]
 
 SRC defaults to the copies bundled in tools/data/. ``--evaluate`` then runs the capture through the
 listener's pipeline core and prints what SFA achieves (and writes evaluation.json). What is real and
@@ -32,7 +33,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     dr.add_argument("--speed-sigma", type=float, default=0.3, metavar="MPS",
                     help="1-sigma written into each ODOMETER datagram [m/s] (default 0.3)")
     dr.add_argument("--latency", type=float, metavar="S",
-                    help="age of GPS fix and speed when logged [s] (default: estimated from the data)")
+                    help="age of the receiver's speed at its time tag, on the logger clock [s] (default: "
+                         "estimated from the data)")
+    dr.add_argument("--position-lead", type=float, metavar="S",
+                    help="how much earlier than the speed the positions are valid [s] (default: estimated "
+                         "from the data)")
     for p in (sl, dr):
         p.add_argument("-o", "--out", required=True, help="output directory")
         p.add_argument("--force", action="store_true", help="replace existing outputs in OUT")
@@ -42,6 +47,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                        help="FilterConfig override for --evaluate (repeatable)")
         p.add_argument("--eval-without", action="append", default=[], choices=("imu", "odometer", "gps"),
                        help="leave a sensor's datagrams out of --evaluate (repeatable)")
+        p.add_argument("--eval-gps-gap", metavar="START:END",
+                       help="--evaluate with the GNSS fixes withheld from START to END seconds after the "
+                            "first fix (an outage); the figures then include the drift against them")
+        p.add_argument("--eval-gap-odometer", action="store_true",
+                       help="withhold the odometer in the --eval-gps-gap window too (Dresden: its speed "
+                            "comes from the GNSS receiver, so a real outage loses both)")
 
 
 def _overrides(items: list[str]) -> dict[str, object]:
@@ -65,6 +76,7 @@ def _overrides(items: list[str]) -> dict[str, object]:
 
 def run(args: argparse.Namespace) -> int:
     import json
+    import math
     from pathlib import Path
 
     from tools.adapters.common import MODULE_PORTS, write_json
@@ -82,7 +94,8 @@ def run(args: argparse.Namespace) -> int:
     else:
         from tools.adapters.dresden import DresdenConfig, convert_dresden
 
-        cfg = DresdenConfig(speed_sigma_mps=args.speed_sigma, gnss_latency_s=args.latency)
+        cfg = DresdenConfig(speed_sigma_mps=args.speed_sigma, gnss_latency_s=args.latency,
+                            position_lead_s=args.position_lead)
         conv = convert_dresden(args.src, args.out, cfg, overwrite=args.force)
     print(f"convert {args.source}: {conv.packets} datagrams "
           f"({', '.join(f'{k} {v}' for k, v in conv.by_module.items())}) -> {conv.out_dir}")
@@ -102,7 +115,13 @@ def run(args: argparse.Namespace) -> int:
     from listener.config import ListenerConfig
     from sfa.errors import FilterConfigError
     from sfa.presets import filter_config_for
-    from tools.adapters.evaluate import read_truth, run_pipeline, self_consistency, truth_figures
+    from tools.adapters.evaluate import (
+        read_truth,
+        run_pipeline,
+        self_consistency,
+        truth_figures,
+        write_updates_csv,
+    )
 
     overrides = _overrides(args.eval_set)
     try:
@@ -113,26 +132,51 @@ def run(args: argparse.Namespace) -> int:
     if hold is not None:
         lcfg = replace(lcfg, merge=replace(lcfg.merge, hold_s=float(hold)))
     excluded = frozenset(MODULE_PORTS[m] for m in args.eval_without)
-    result = run_pipeline(conv.capture, conv.track, lcfg, filter_config=fcfg, exclude_ports=excluded)
+    reference = read_truth(conv.truth if conv.truth is not None else Path(conv.out_dir) / "gnss_on_track.csv")
+    gap = None
+    if args.eval_gps_gap:
+        start, sep, end = args.eval_gps_gap.partition(":")
+        try:
+            a, b = float(start), float(end)
+        except ValueError:
+            a = b = math.nan
+        if not sep or not (math.isfinite(a) and math.isfinite(b) and 0.0 <= a < b):
+            raise ToolError(f"--eval-gps-gap expects START:END seconds with 0 <= START < END, "
+                            f"got {args.eval_gps_gap!r}")
+        t0 = float(reference["epoch"][0])
+        gap = (t0 + a, t0 + b)
+    gap_ports = {MODULE_PORTS["gps"]} | ({MODULE_PORTS["odometer"]} if args.eval_gap_odometer else set())
+    result = run_pipeline(conv.capture, conv.track, lcfg, filter_config=fcfg, exclude_ports=excluded,
+                          gps_gap=gap, gap_ports=frozenset(gap_ports))
     est = result["estimates"]
     if est["epoch"].size == 0:
         raise ToolError("the pipeline produced no estimate from this capture")
     if conv.truth is not None:
-        figures = truth_figures(est, read_truth(conv.truth))
+        figures = truth_figures(est, reference)
         print(f"  along-track error vs truth: rms {figures['rms_m']:.3f} m, p95 {figures['p95_m']:.3f} m, "
               f"max {figures['max_m']:.3f} m, interval coverage {figures['coverage']:.3f} "
               f"({figures['n']} estimates)")
     else:
-        figures = self_consistency(est, read_truth(Path(conv.out_dir) / "gnss_on_track.csv"))
+        figures = self_consistency(est, reference, gap)
         print(f"  self-consistency (no truth): estimate - GNSS fix on track: rms "
               f"{figures['along_track_residual_rms_m']:.2f} m, "
+              f"p50 {figures['along_track_residual_p50_m']:.2f} m, "
               f"p95 {figures['along_track_residual_p95_m']:.2f} m, "
               f"max {figures['along_track_residual_max_m']:.2f} m; backward output steps "
               f"{figures['backward_steps']}")
+        if gap is not None and figures.get("gap_fixes"):
+            what = "fixes and speeds" if args.eval_gap_odometer else "fixes"
+            print(f"  GNSS withheld {args.eval_gps_gap} s ({result['gps_withheld']} {what}): estimate - "
+                  f"withheld fix on track: p50 {figures['gap_residual_p50_m']:.2f} m, "
+                  f"p95 {figures['gap_residual_p95_m']:.2f} m, max {figures['gap_residual_max_m']:.2f} m, "
+                  f"at the end of the gap {figures['gap_residual_end_m']:.2f} m")
     filt = result["metrics"]["filter"]
     print(f"  filter outcomes: {', '.join(f'{k} {v}' for k, v in filt['outcomes'].items())}")
+    write_updates_csv(Path(conv.out_dir) / "updates.csv", result["updates"])
     write_json(Path(conv.out_dir) / "evaluation.json", {
         "figures": figures, "filter_overrides": overrides, "without": sorted(args.eval_without),
         "listener_merge_hold_s": lcfg.merge.hold_s, "filter": filt,
+        "gps_gap_s": args.eval_gps_gap, "gap_odometer": args.eval_gap_odometer,
+        "withheld": result["gps_withheld"],
     })
     return 0

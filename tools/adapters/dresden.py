@@ -11,19 +11,29 @@ What goes into the capture (docs/real-data.md has the evidence and the measured 
   both vectors are rotated by the roll and pitch of the mean specific force over the drive (coarse
   levelling, the usual mounting alignment; angles in metadata.json). No other change. REAL.
 * ODOMETER: the ``speed`` column [km/h -> m/s] at each new GPS epoch, with a constant documented sigma.
-  It updates exactly with the GPS epochs, so it is most likely the receiver's speed over ground (not a
-  wheel sensor): it is not independent of the GPS positions. REAL.
+  It updates exactly with the GPS epochs, so it is the receiver's speed over ground (not a wheel
+  sensor): it is not independent of the GPS positions. REAL.
 * GPS: each new GPS epoch (the ``time`` column changes, 10 Hz): lat, lon, altitude, ``epe`` as sigma_h,
-  fix 2/3 -> NMEA quality 1 (else 0), ``satellites_used``, dated by the ``millis`` of the row where it
-  first appears (the logger's clock). REAL.
-* Track: digitised from those GPS fixes themselves (there is no other geometry): thinned to at least
-  ``min_spacing_m`` between vertices, then a ``smooth_vertices``-point moving average on the interior
-  vertices. No altitude: the GPS altitude is far too noisy for a grade (it would feed the filter
-  metres-per-second-squared of false gravity along the track), so the track is taken as level.
-  Because the track comes from the same GPS the filter uses, results can only be checked for
-  self-consistency (gnss_on_track.csv: each fix projected on the track; see tools.adapters.evaluate).
-* Control: GROUND TRUTH at the first row (arc length of the first fix projected on the track, speed of
-  the first row), STROBE every second, STOP 0.5 s after the last row.
+  fix 2/3 -> NMEA quality 1 (else 0), ``satellites_used``. REAL.
+* Timing: every GNSS epoch is dated by the receiver's own time tag (``time``, hhmmssSS0 UTC) mapped to
+  the logger clock with one constant offset (the median of read time minus tag), then moved back by
+  its latency: the speed by the lag that best aligns d(speed)/dt with the IMU's forward specific force
+  (0.95 s on 2014-03-26), the positions by that minus the lag of the speed behind the positions' own
+  speed (0.45 s; the gyro against the GPS heading rate confirms 0.6 s). Not by the row that first holds
+  it: the logger reads the receiver late by a varying amount (up to 1.7 s after it stalled). Each
+  datagram is *sent* at that row's logger time, its real arrival. An epoch whose tag does not increase
+  is dropped and counted.
+* Track: digitised from the GPS fixes taken at >= ``track_min_speed_mps`` (there is no other
+  geometry): thinned to at least ``min_spacing_m`` between vertices, a ``smooth_vertices``-point moving
+  average on the interior vertices, and a ``track_smoothing_sigma_m`` heading/curvature profile (5 m:
+  street corners; the gyro agrees best with it, docs/real-data.md). No altitude: the GPS altitude is
+  far too noisy for a grade (it would feed the filter metres-per-second-squared of false gravity along
+  the track), so the track is taken as level. Because the track comes from the same GPS the filter
+  uses, results can only be checked for self-consistency (gnss_on_track.csv: each fix projected on the
+  track; see tools.adapters.evaluate).
+* Control: GROUND TRUTH before the first row, dated at the first fix's sampling time (its arc length
+  projected on the track, the speed interpolated there), STROBE every second, STOP 0.5 s after the last
+  row.
 """
 
 from __future__ import annotations
@@ -74,10 +84,19 @@ class DresdenConfig:
     smooth_vertices: int = 5  #: moving-average window over the thinned vertices [vertices, odd]
     level_imu: bool = True  #: rotate the IMU by the roll/pitch of its mean specific force
     junction_tolerance_m: float = 0.01  #: vertex distance that makes a junction (see smartloc) [m]
-    #: age of the GPS fix and speed when the logger records them [s]; None: estimated from the data
-    #: (the lag that best aligns d(speed)/dt with the IMU's forward specific force)
+    #: age of the receiver's speed (and course) at its time tag, on the logger clock [s]; None: estimated
+    #: from the data (the lag that best aligns d(speed)/dt with the IMU's forward specific force)
     gnss_latency_s: float | None = None
-    max_latency_s: float = 3.0  #: largest latency searched by the estimate [s]
+    #: how much earlier than the speed the positions are valid [s]; None: estimated from the data (the
+    #: lag that best aligns the speed column with the speed derived from the positions)
+    position_lead_s: float | None = None
+    max_latency_s: float = 3.0  #: largest latency searched by the estimates [s]
+    #: fixes slower than this (by the speed column) are not used for the track: at a standstill the
+    #: positions wander by metres and would add false length and false curvature [m/s]
+    track_min_speed_mps: float = 1.0
+    #: Gaussian smoothing of the track's heading/curvature profile (track_db BuildConfig) [m]; streets
+    #: turn in 10-20 m radius corners, which the 20 m default for railway lines smears out
+    track_smoothing_sigma_m: float = 5.0
     schedule: ScheduleConfig = field(default_factory=ScheduleConfig)
 
     def __post_init__(self) -> None:
@@ -91,6 +110,16 @@ class DresdenConfig:
             raise ToolError(
                 f"gnss_latency_s must be in [0, {self.max_latency_s}], got {self.gnss_latency_s!r}"
             )
+        if self.position_lead_s is not None and not (
+            math.isfinite(self.position_lead_s) and 0.0 <= self.position_lead_s <= self.max_latency_s
+        ):
+            raise ToolError(
+                f"position_lead_s must be in [0, {self.max_latency_s}], got {self.position_lead_s!r}"
+            )
+        if not (math.isfinite(self.track_min_speed_mps) and self.track_min_speed_mps >= 0.0):
+            raise ToolError(f"track_min_speed_mps must be >= 0, got {self.track_min_speed_mps!r}")
+        if not (math.isfinite(self.track_smoothing_sigma_m) and self.track_smoothing_sigma_m > 0.0):
+            raise ToolError(f"track_smoothing_sigma_m must be > 0, got {self.track_smoothing_sigma_m!r}")
         if self.smooth_vertices < 1 or self.smooth_vertices % 2 == 0:
             raise ToolError(f"smooth_vertices must be a positive odd number, got {self.smooth_vertices!r}")
 
@@ -158,30 +187,81 @@ def levelling(f_mean: np.ndarray) -> tuple[float, float, np.ndarray]:
     return roll, pitch, ry @ rx
 
 
+def lagged_fit(
+    t_a_s: np.ndarray, a: np.ndarray, t_b_s: np.ndarray, b: np.ndarray,
+    max_lag_s: float = 3.0, step_s: float = 0.05, min_lag_s: float = 0.0,
+) -> tuple[float, float, float]:
+    """(lag_s, correlation, slope): the lag in [min_lag_s, max_lag_s] for which ``b(t)`` best follows
+    ``a(t - lag)`` (``b`` is ``lag`` later than ``a``).
+
+    Both signals on a 0.1 s grid, Gaussian-smoothed (sigma 0.5 s), Pearson correlation at each candidate
+    lag; the best one wins. The slope of ``a`` on ``b`` at that lag is a scale check (1: same units)."""
+    from scipy.ndimage import gaussian_filter1d
+
+    pad = max(max_lag_s, -min_lag_s, 0.0)
+    lo, hi = max(t_a_s[0], t_b_s[0]) + pad, min(t_a_s[-1], t_b_s[-1]) - pad
+    if hi - lo < 10.0:
+        raise ToolError("too short a log to estimate a latency (needs > 10 s beyond the lag range)")
+    grid = np.arange(lo, hi, 0.1)
+    bb = gaussian_filter1d(np.interp(grid, t_b_s, b), 5.0)
+    best = (-2.0, 0.0, 0.0)
+    for lag in np.arange(min_lag_s, max_lag_s + 1e-9, step_s):
+        aa = gaussian_filter1d(np.interp(grid - lag, t_a_s, a), 5.0)
+        c = float(np.corrcoef(bb, aa)[0, 1])
+        if c > best[0]:
+            best = (c, float(lag), float(np.polyfit(bb, aa, 1)[0]))
+    return best[1], best[0], best[2]
+
+
 def estimate_latency_s(
     t_s: np.ndarray, f_forward_mps2: np.ndarray, t_speed_s: np.ndarray, speed_mps: np.ndarray,
     max_lag_s: float = 3.0, step_s: float = 0.05,
 ) -> tuple[float, float, float]:
-    """(lag_s, correlation, slope): how much later than the IMU the speed reflects the same acceleration.
-
-    Both signals on a 0.1 s grid, Gaussian-smoothed (sigma 0.5 s); d(speed)/dt is correlated with the
-    forward specific force shifted by each candidate lag in [0, max_lag_s]; the best lag wins. The slope
-    of f_forward on d(speed)/dt at that lag is a scale check (1 for a consistent pair)."""
+    """(lag_s, correlation, slope): how much later than the IMU the speed reflects the same acceleration
+    (d(speed)/dt against the forward specific force, :func:`lagged_fit`; slope 1 for a consistent pair)."""
     from scipy.ndimage import gaussian_filter1d
 
-    lo, hi = max(t_s[0], t_speed_s[0]) + max_lag_s, min(t_s[-1], t_speed_s[-1])
-    if hi - lo < 10.0:
-        raise ToolError("too short a log to estimate the GNSS latency (needs > 10 s beyond the lag range)")
-    grid = np.arange(lo, hi, 0.1)
-    v = gaussian_filter1d(np.interp(grid, t_speed_s, speed_mps), 5.0)
-    dv = np.gradient(v, grid)
-    best = (-2.0, 0.0, 0.0)
-    for lag in np.arange(0.0, max_lag_s + 1e-9, step_s):
-        fx = gaussian_filter1d(np.interp(grid - lag, t_s, f_forward_mps2), 5.0)
-        c = float(np.corrcoef(dv, fx)[0, 1])
-        if c > best[0]:
-            best = (c, float(lag), float(np.polyfit(dv, fx, 1)[0]))
-    return best[1], best[0], best[2]
+    if t_speed_s.size < 3:
+        raise ToolError("too short a log to estimate the GNSS latency")
+    dv = np.gradient(gaussian_filter1d(speed_mps, 2.0), t_speed_s)
+    return lagged_fit(t_s, f_forward_mps2, t_speed_s, dv, max_lag_s, step_s)
+
+
+def position_speed_mps(t_s: np.ndarray, east_m: np.ndarray, north_m: np.ndarray, half_window: int = 5
+                       ) -> np.ndarray:
+    """Speed from the positions: chord over +-``half_window`` epochs divided by its time (ends: shorter)."""
+    n = t_s.size
+    i = np.arange(n)
+    a, b = np.clip(i - half_window, 0, n - 1), np.clip(i + half_window, 0, n - 1)
+    dt = t_s[b] - t_s[a]
+    chord = np.hypot(east_m[b] - east_m[a], north_m[b] - north_m[a])
+    return np.where(dt > 0, chord / np.where(dt > 0, dt, 1.0), 0.0)
+
+
+def heading_rate_radps(t_s: np.ndarray, east_m: np.ndarray, north_m: np.ndarray, speed_mps: np.ndarray,
+                       min_speed_mps: float = 3.0, half_window: int = 3) -> np.ndarray:
+    """Clockwise heading rate of the position track [rad/s] (FRD yaw-rate sign); 0 below ``min_speed_mps``
+    (the heading of a slow track is noise)."""
+    from scipy.ndimage import gaussian_filter1d
+
+    es, ns = gaussian_filter1d(east_m, 2.0), gaussian_filter1d(north_m, 2.0)
+    n = t_s.size
+    i = np.arange(n)
+    a, b = np.clip(i - half_window, 0, n - 1), np.clip(i + half_window, 0, n - 1)
+    hd = np.unwrap(np.arctan2(es[b] - es[a], ns[b] - ns[a]))
+    rate = np.gradient(hd, t_s)
+    return np.where(speed_mps >= min_speed_mps, rate, 0.0)
+
+
+def gps_time_tags_s(time_col: np.ndarray) -> np.ndarray:
+    """The receiver's time tag of each row [s of the UTC day, unwrapped past midnight] from the
+    ``time`` column (hhmmssSS0: 123825300 = 12:38:25.30)."""
+    tm = np.asarray(time_col, dtype=np.float64)
+    hh, mm = np.floor(tm / 1e7), np.floor(tm / 1e5) % 100.0
+    ss = (tm % 1e5) / 1000.0
+    sod = hh * 3600.0 + mm * 60.0 + ss
+    wraps = np.concatenate(([0.0], np.cumsum(np.diff(sod) < -43200.0)))
+    return sod + 86400.0 * wraps
 
 
 def gps_epochs(d: dict[str, np.ndarray]) -> np.ndarray:
@@ -228,42 +308,79 @@ def convert_dresden(
     if bad.size:
         raise ToolError(f"{path}:{int(bad[0]) + 2}: IMU sample outside the wire range")
 
-    # --- GPS epochs
-    g = gps_epochs(d)
+    # --- GPS epochs, dated by the receiver's own time tag (``time``), not by when the logger read them:
+    # the logger reads the receiver late by a varying amount (0.2 s normally, up to 1.7 s after it
+    # stalled 96-99 s into the 2014-03-26 drive). An epoch whose tag does not increase is dropped.
+    g_all = gps_epochs(d)
+    tag_all = gps_time_tags_s(d["time"][g_all])
+    in_order = tag_all > np.maximum.accumulate(np.r_[-np.inf, tag_all[:-1]])
+    g, tag = g_all[in_order], tag_all[in_order]
+    dropped_out_of_order = int((~in_order).sum())
+    if g.size < 2:
+        raise ToolError(f"{path}: fewer than two GPS epochs with increasing time tags")
+    # time tag -> logger clock: the median of (logger time when read - tag); the spread is reading delay
+    read_delay = t[g] - tag
+    clock_offset = float(np.median(read_delay))
+    t_tag = tag + clock_offset  # logger time at which the receiver tagged each epoch
+    drift = float(np.polyfit(t_tag - t_tag[0], read_delay, 1)[0]) if g.size > 2 else 0.0
     glat, glon, galt = d["latitude"][g], d["longitude"][g], d["altitude"][g]
     fixq = np.where(d["fix"][g] >= 2.0, 1, 0).astype(int)
     valid = fixq > 0
     if valid.sum() < 2:
         raise ToolError(f"{path}: fewer than two GPS epochs with a fix")
+    speed = d["speed"][g] * KMH
 
-    # --- GNSS latency: the logger records fix and speed late; their epochs are moved back by it
-    lag_corr = lag_slope = math.nan
-    if cfg.gnss_latency_s is None:
-        latency, lag_corr, lag_slope = estimate_latency_s(t, f[:, 0], t[g], d["speed"][g] * KMH,
-                                                          cfg.max_latency_s)
-    else:
-        latency = float(cfg.gnss_latency_s)
-    gt = t[g] - latency  # sampling time of each GPS epoch (fix and speed)
-
-    # --- track from the valid fixes
     frame = LocalFrame.from_proj(centred_proj_string(glat[valid], glon[valid]))
     e, n = (np.asarray(a) for a in frame.to_local(glat[valid], glon[valid]))
-    keep = thin_by_spacing(e, n, cfg.min_spacing_m)
+
+    # --- GNSS latencies on the logger clock. Speed (and course) come from the receiver's velocity
+    # solution and lag the IMU more than its positions do, so each gets its own latency:
+    #   speed: the lag that best aligns d(speed)/dt with the IMU's forward specific force;
+    #   positions: the speed latency minus the lag of the speed column behind the positions' own speed.
+    lag_corr = lag_slope = lead_corr = lead_slope = math.nan
+    if cfg.gnss_latency_s is None:
+        latency, lag_corr, lag_slope = estimate_latency_s(t, f[:, 0], t_tag, speed, cfg.max_latency_s)
+    else:
+        latency = float(cfg.gnss_latency_s)
+    if cfg.position_lead_s is None:
+        lead, lead_corr, lead_slope = lagged_fit(t_tag[valid], position_speed_mps(t_tag[valid], e, n),
+                                                 t_tag, speed, cfg.max_latency_s)
+    else:
+        lead = float(cfg.position_lead_s)
+    pos_latency = max(latency - lead, 0.0)
+    t_speed = t_tag - latency  # sampling time of each speed
+    t_pos = t_tag - pos_latency  # sampling time of each position
+    # independent check of the position latency: the GPS heading rate against the gyro's yaw rate
+    try:
+        yaw_lag, yaw_corr, yaw_slope = lagged_fit(
+            t, w[:, 2], t_tag[valid],
+            heading_rate_radps(t_pos[valid], e, n, np.interp(t_pos[valid], t_speed, speed)),
+            cfg.max_latency_s)
+    except ToolError:
+        yaw_lag = yaw_corr = yaw_slope = math.nan
+
+    # --- track from the valid fixes taken while moving (speed at the fix's own time)
+    moving = np.interp(t_pos[valid], t_speed, speed) >= cfg.track_min_speed_mps
+    if moving.sum() < 2:
+        raise ToolError(f"{path}: fewer than two fixes at >= {cfg.track_min_speed_mps} m/s")
+    em, nm = e[moving], n[moving]
+    keep = thin_by_spacing(em, nm, cfg.min_spacing_m)
     if keep.size < 2:
         raise ToolError(f"{path}: the GPS track does not move {cfg.min_spacing_m} m")
-    te = moving_average_interior(e[keep], cfg.smooth_vertices)
-    tn = moving_average_interior(n[keep], cfg.smooth_vertices)
+    te = moving_average_interior(em[keep], cfg.smooth_vertices)
+    tn = moving_average_interior(nm[keep], cfg.smooth_vertices)
     tlat, tlon = (np.asarray(a) for a in frame.to_geodetic(te, tn))
     geom = LineGeometry(
         "Dresden car drive 2014-03-26 (digitised from its own GPS)", tlat, tlon, None,
-        source=f"{path.name}: GPS epochs thinned to >= {cfg.min_spacing_m} m, "
-               f"{cfg.smooth_vertices}-vertex moving average",
+        source=f"{path.name}: GPS fixes at >= {cfg.track_min_speed_mps} m/s thinned to >= "
+               f"{cfg.min_spacing_m} m, {cfg.smooth_vertices}-vertex moving average",
         attribution=ATTRIBUTION,
     )
     track_path = out / "track.db"
     try:
         create_database(track_path, [geom], overwrite=True,
-                        config=BuildConfig(junction_tolerance_m=cfg.junction_tolerance_m))
+                        config=BuildConfig(junction_tolerance_m=cfg.junction_tolerance_m,
+                                           smoothing_sigma_m=cfg.track_smoothing_sigma_m))
         db = TrackDatabase.open(track_path)
     except TrackDbError as exc:
         raise ToolError(f"cannot build the track from {path}: {exc}") from exc
@@ -271,7 +388,9 @@ def convert_dresden(
     if line.s_m.size != keep.size:
         raise ToolError(f"track build changed the vertex count ({keep.size} -> {line.s_m.size})")
     fe, fn = (np.asarray(a) for a in db.to_local(glat[valid], glon[valid]))
-    hint = np.clip(np.searchsorted(keep, np.arange(fe.size), side="right") - 1, 0, keep.size - 2)
+    # each fix's expected segment: the one of the last track vertex taken at or before it
+    src_index = np.flatnonzero(moving)[keep]
+    hint = np.clip(np.searchsorted(src_index, np.arange(fe.size), side="right") - 1, 0, keep.size - 2)
     fix_s, fix_dist = project_along(line.s_m, line.east_m, line.north_m, fe, fn, hint)
     line_id = int(line.line_id)
     length_m = float(line.length_m)
@@ -280,28 +399,31 @@ def convert_dresden(
     # --- datagrams
     tl = Timeline(cfg.schedule)
     t0, t1 = float(t[0]), float(t[-1])
-    v0 = float(d["speed"][g][valid][0]) * KMH
     s0 = float(fix_s[0])
-    tg0 = float(gt[valid][0])  # GROUND TRUTH carries the state at the first fix's sampling time
+    tg0 = float(t_pos[valid][0])  # GROUND TRUTH carries the state at the first fix's sampling time
+    v0 = float(np.interp(tg0, t_speed, speed))
     add_control(tl, t0, t1, lambda seq: GroundTruth(seq, v0, 0.0, 0.0, s0, line_id, tg0))
     for ti, fi, wi in zip(t.tolist(), f.tolist(), w.tolist(), strict=True):
         tl.add("imu", ti, lambda seq, ti=ti, fi=fi, wi=wi: ImuSample(seq, *fi, *wi, ti))
-    # sent when the logger recorded them (t[g]), dated by their sampling time (gt)
-    for ts, ti, v in zip(t[g].tolist(), gt.tolist(), (d["speed"][g] * KMH).tolist(), strict=True):
+    # sent when the logger read them (t[g]), dated by their sampling time (t_speed, t_pos)
+    for ts, ti, v in zip(t[g].tolist(), t_speed.tolist(), speed.tolist(), strict=True):
         tl.add("odometer", ts, lambda seq, ti=ti, v=v: OdometerSample(seq, v, cfg.speed_sigma_mps, ti))
     epe = d["epe"][g]
-    for i, (ts, ti) in enumerate(zip(t[g].tolist(), gt.tolist(), strict=True)):
+    for i, (ts, ti) in enumerate(zip(t[g].tolist(), t_pos.tolist(), strict=True)):
         sig = float(epe[i]) if epe[i] > 0 else None
         tl.add("gps", ts, lambda seq, i=i, ti=ti, sig=sig: GpsFix(
             seq, float(glat[i]), float(glon[i]), float(galt[i]), int(fixq[i]),
             int(min(max(d["satellites_used"][g][i], 0), 255)),
             sig if sig is not None else 1e5, ti))
     packets = tl.packets()
+    # the merge must hold every measurement until it is processed in epoch order
+    wait = float(np.max(t[g] - np.minimum(t_speed, t_pos))) + cfg.schedule.transport_delay_s
+    hold = math.ceil((wait + 0.2) * 100.0) / 100.0
     capture = out / "capture.pcap"
     write_pcap(packets, capture, cfg.schedule.listener_port)
     ref = out / "gnss_on_track.csv"
     write_truth_csv(
-        ref, {"epoch": gt[valid], "arc_length": fix_s, "cross_track": fix_dist, "epe": epe[valid]},
+        ref, {"epoch": t_pos[valid], "arc_length": fix_s, "cross_track": fix_dist, "epe": epe[valid]},
         {"epoch": ".3f", "arc_length": ".4f", "cross_track": ".4f", "epe": ".2f"},
     )
     by_module = count_by_module(packets)
@@ -318,14 +440,29 @@ def convert_dresden(
             "odometer": f"speed column km/h -> m/s at each GPS epoch, sigma {cfg.speed_sigma_mps} m/s "
                         "(constant, chosen: the log has none; likely GNSS speed over ground)",
             "gps": "lat, lon, altitude, epe as sigma_h, fix>=2 -> quality 1, satellites_used",
-            "gnss_latency": {
-                "latency_s": latency,
-                "estimated": cfg.gnss_latency_s is None,
-                "correlation": lag_corr,
-                "slope_f_forward_on_dv_dt": lag_slope,
-                "how": "GPS and speed datagrams are sent at the row's logger time, with epoch = logger "
-                       "time - latency (the lag maximising the correlation of d(speed)/dt with the "
-                       "IMU's forward specific force)",
+            "gnss_timing": {
+                "dating": "each epoch by the receiver's time tag (the `time` column) mapped to the logger "
+                          "clock with a constant offset; sent at the logger time of the row that first "
+                          "holds it (its real arrival)",
+                "tag_to_logger_offset_s": clock_offset,
+                "read_delay_minus_offset_s": {"min": float(np.min(read_delay) - clock_offset),
+                                              "max": float(np.max(read_delay) - clock_offset)},
+                "logger_minus_tag_drift": drift,
+                "epochs_dropped_out_of_order": dropped_out_of_order,
+                "speed_latency_s": latency,
+                "speed_latency_estimated": cfg.gnss_latency_s is None,
+                "speed_latency_correlation": lag_corr,
+                "speed_latency_slope_f_forward_on_dv_dt": lag_slope,
+                "position_lead_s": lead,
+                "position_lead_estimated": cfg.position_lead_s is None,
+                "position_lead_correlation": lead_corr,
+                "position_lead_slope_position_speed_on_speed": lead_slope,
+                "position_latency_s": pos_latency,
+                "check_gyro_vs_gps_heading_rate": {"lag_s": yaw_lag, "correlation": yaw_corr,
+                                                   "slope_gz_on_heading_rate": yaw_slope},
+                "how": "speed latency: the lag maximising the correlation of d(speed)/dt with the IMU's "
+                       "forward specific force; position lead: the lag of the speed column behind the "
+                       "speed derived from the positions; position latency = speed latency - lead",
             },
         },
         "synthesised": {},
@@ -335,19 +472,21 @@ def convert_dresden(
             "listener_port": cfg.schedule.listener_port,
             "source_ports": {m: p for m, p in sorted(MODULE_PORTS.items()) if m in by_module},
             "timestamps": f"logger time (unix s) + {cfg.schedule.transport_delay_s} s transport delay",
-            "epochs": "every measurement datagram carries its epoch (logger millis / 1000)",
-            "control": f"GROUND TRUTH {cfg.schedule.ground_truth_lead_s} s before the first row (first "
-                       "fix projected on the track, first speed), STROBE every "
-                       f"{cfg.schedule.strobe_interval_s} s, STOP 0.5 s after the last row",
+            "epochs": "every measurement datagram carries its epoch: IMU logger millis / 1000; GPS and speed "
+                      "their sampling time (see real.gnss_timing)",
+            "control": f"GROUND TRUTH {cfg.schedule.ground_truth_lead_s} s before the first row (dated at "
+                       "the first fix's sampling time: its arc length on the track, the speed there), "
+                       f"STROBE every {cfg.schedule.strobe_interval_s} s, STOP 0.5 s after the last row",
             "datagrams": by_module,
         },
         "recommended_listener": {
-            "merge.hold_s": round(latency + 0.2, 2),
-            "why": "GPS and speed arrive `latency` after their epoch; the merge must wait that long so "
-                   "the filter gets them in time order (the filter drops GNSS older than 0.5 s)",
+            "merge.hold_s": hold,
+            "why": "GPS and speed arrive up to this long (less 0.2 s) after their epoch; the merge must "
+                   "wait that long so the filter gets them in time order (it drops GNSS older than 0.5 s)",
         },
         "track": {"vertices": int(keep.size), "length_m": length_m, "min_spacing_m": cfg.min_spacing_m,
-                  "smooth_vertices": cfg.smooth_vertices},
+                  "smooth_vertices": cfg.smooth_vertices, "min_speed_mps": cfg.track_min_speed_mps,
+                  "fixes_used": int(moving.sum()), "profile_smoothing_sigma_m": cfg.track_smoothing_sigma_m},
     }
     metadata = out / "metadata.json"
     write_json(metadata, meta)
