@@ -244,3 +244,21 @@ def test_pipeline_accuracy_on_the_real_drive(converted):
     outcomes = result["metrics"]["filter"]["outcomes"]
     assert outcomes == {"gps_accepted": 283, "init_initialised": 1, "odo_accepted": 1372}
     assert "imu_timeout" in result["metrics"]["filter"]["reasons"]  # honest: there is no IMU
+
+
+def test_cli_evaluates_a_gnss_gap_against_the_truth(tmp_path):
+    """Real process: ``sfa convert smartloc --evaluate --eval-gps-gap 100:160`` withholds the 60 fixes of
+    that minute (1 Hz), reports the error inside the gap and writes it, with updates.csv."""
+    import json
+
+    out = tmp_path / "g"
+    run = subprocess.run([sys.executable, "-m", "sfa", "convert", "smartloc", "-o", str(out), "--evaluate",
+                          "--eval-gps-gap", "100:160"], capture_output=True, text=True, timeout=300)
+    assert run.returncode == 0, run.stderr
+    assert "inside the GNSS gap 100:160 s (60 withheld)" in run.stdout
+    ev = json.loads((out / "evaluation.json").read_text())
+    assert ev["withheld"] == 60 and ev["filter"]["outcomes"]["gps_accepted"] == 283 - 60
+    gap = ev["figures"]["gap"]
+    assert 0.0 < gap["p95_m"] <= gap["max_m"] <= ev["figures"]["max_m"]
+    rows = (out / "updates.csv").read_text().splitlines()
+    assert sum(1 for r in rows[1:] if r.split(",")[1] == "gps") == 283 - 60
