@@ -14,9 +14,11 @@ and it stops, handing the measurement back to the caller (which runs ``TrackFilt
 where ``TrackFilter`` would do anything else:
 
 - STOP_BEFORE: before a GROUND TRUTH (initialisation) or a measurement the time-jump rule looks at,
-- STOP_UNDONE: after restoring the state from before the measurement, when it would spawn branch
-  hypotheses (a hypothesis within the junction window of a junction it has not branched at, or at an
-  arc length that is not finite) or its scores would not be finite.
+- STOP_AFTER: after a measurement that brings a hypothesis within the junction window of a junction
+  it has not branched at (or to an arc length that is not finite): everything up to the last statement
+  of ``TrackFilter.process`` is done, and the caller runs that statement, ``_spawn_branches``, itself,
+- STOP_UNDONE: after restoring the state from before the measurement, when a hypothesis score would
+  not be finite (snapshots are taken only while several hypotheses are kept).
 
 After every processed measurement it also applies the listener's output rule (finite estimate, not
 stale against the STROBE clock, epoch not older than the last output, not the same epoch and arc
@@ -36,6 +38,7 @@ from sfa import layout as L
 DONE = 0  #: every measurement processed
 STOP_BEFORE = 1  #: stopped before measurement i (state untouched by it)
 STOP_UNDONE = 2  #: measurement i was stepped, then undone (state as before it)
+STOP_AFTER = 3  #: measurement i was processed up to TrackFilter._spawn_branches, which the caller runs
 
 
 @njit(cache=False)
@@ -210,10 +213,12 @@ def run_segment(
     """Step measurements i0, i0 + 1, ... of (kind, t, vals) with the hypotheses ``order[:ns[0]]``
     (slots of X, PP, AUX, CNT, MEM), reported ``order[ns[1]]``; S* are snapshot arrays of the same shapes.
 
-    out_f (n, 5): epoch [s], s [m], speed [m/s], sigma_s [m], nis (NaN for IMU); out_i (n, 4): outcome,
-    status, reason bits, 1 when the listener sends an output. ``last``: the listener's last output
-    (epoch, s), advanced; ``stale[0]``: estimates not sent as stale, advanced.
-    Returns (index of the first measurement not processed, DONE / STOP_BEFORE / STOP_UNDONE).
+    out_f (5, n): epoch [s], s [m], speed [m/s], sigma_s [m], nis (NaN for IMU); out_i (4, n): outcome,
+    status, reason bits, 1 when the listener sends an output (one contiguous row per quantity).
+    ``last``: the listener's last output (epoch, s), advanced; ``stale[0]``: estimates not sent as
+    stale, advanced.
+    Returns (i, why): DONE with i = n, STOP_BEFORE / STOP_UNDONE with i the first measurement not
+    processed, STOP_AFTER with i the measurement whose branch spawning and output are the caller's.
     """
     n = kind.shape[0]
     nj = junc_s.shape[0]
@@ -230,7 +235,7 @@ def run_segment(
         rep = ns[1]
         if math.isfinite(ti) and ti - AUX[order[rep], L.A_T_STATE] > jump_limit:
             return i, STOP_BEFORE  # TrackFilter._is_time_jump
-        snap = k != 1 and (nj > 0 or nh > 1)
+        snap = k != 1 and nh > 1  # only a score can need undoing
         if snap:
             for j in range(nh):
                 h = order[j]
@@ -279,23 +284,7 @@ def run_segment(
         elif k == 3:
             nis = AUX[order[rep], L.A_LAST_NIS_GPS]
         undo = False
-        if nj > 0 and (k == 3 or (k == 2 and code == K.O_ACCEPTED)):
-            # TrackFilter._spawn_branches would look for junctions within the window: any not yet
-            # branched at (junc_s) means new hypotheses; a non-finite s is taken as one (bisect on NaN)
-            for j in range(nh):
-                s = X[order[j], L.S]
-                if not math.isfinite(s):
-                    undo = True
-                    break
-                lo = s - window
-                hi = s + window
-                for q in range(nj):
-                    if lo <= junc_s[q] <= hi:
-                        undo = True
-                        break
-                if undo:
-                    break
-        if not undo and nh > 1:
+        if nh > 1:
             if k == 1:
                 all_ok = True
                 any_on = False
@@ -318,7 +307,7 @@ def run_segment(
                     )
                 else:
                     undo = True
-        if undo:
+        if undo:  # a score that is not finite: sorting by it is Python's business
             for j in range(nh):
                 h = s_order[j]
                 order[j] = h
@@ -334,18 +323,39 @@ def run_segment(
         if k == 2 and reversal and AUX[order[ns[1]], L.A_STILL] != 0.0:
             if _spawn_reversals(order, ns, X, PP, AUX, CNT, MEM):
                 _prune(order, ns, X, AUX, length_m, window, prune_ratio, switch_ratio, max_hyps, keep, key)
+        branch = False
+        if nj > 0 and (k == 3 or (k == 2 and code == K.O_ACCEPTED)):
+            # TrackFilter._spawn_branches comes last in process(): when a hypothesis is within the window
+            # of a junction not yet branched at (or at a non-finite s: bisect on NaN), the caller runs it
+            for j in range(ns[0]):
+                s = X[order[j], L.S]
+                if not math.isfinite(s):
+                    branch = True
+                    break
+                lo = s - window
+                hi = s + window
+                for q in range(nj):
+                    if lo <= junc_s[q] <= hi:
+                        branch = True
+                        break
+                if branch:
+                    break
+        if branch:
+            out_f[4, i] = nis
+            out_i[0, i] = code
+            return i, STOP_AFTER
         r = order[ns[1]]
         epoch = AUX[r, L.A_T_STATE]
         st, bits, sig = K.status_of(X[r], PP[r], AUX[r], cfg, epoch)
         s = X[r, L.S]
-        out_f[i, 0] = epoch
-        out_f[i, 1] = s
-        out_f[i, 2] = float(int(AUX[r, L.A_DIR])) * X[r, L.V]
-        out_f[i, 3] = sig
-        out_f[i, 4] = nis
-        out_i[i, 0] = code
-        out_i[i, 1] = st
-        out_i[i, 2] = bits
+        out_f[0, i] = epoch
+        out_f[1, i] = s
+        out_f[2, i] = float(int(AUX[r, L.A_DIR])) * X[r, L.V]
+        out_f[3, i] = sig
+        out_f[4, i] = nis
+        out_i[0, i] = code
+        out_i[1, i] = st
+        out_i[2, i] = bits
         send = 0
         if math.isfinite(epoch) and math.isfinite(s):
             if epoch < fresh_min[i]:
@@ -354,7 +364,7 @@ def run_segment(
                 send = 1
                 last[0] = epoch
                 last[1] = s
-        out_i[i, 3] = send
+        out_i[3, i] = send
     return n, DONE
 
 

@@ -44,7 +44,7 @@ from numba import njit
 from listener.pipeline import to_measurement
 from sfa import layout as L
 from sfa.layout import Outcome
-from tools.fast_loop import STOP_UNDONE, interp_many, run_segment
+from tools.fast_loop import STOP_AFTER, STOP_UNDONE, interp_many, run_segment
 
 #: datagrams replayed through the exact pipeline at most before the hand-over to compiled code
 MAX_EXACT_PREFIX = 200_000
@@ -363,13 +363,11 @@ def _replay_scanned(scan, track, options):
     from tools.replay import ESTIMATE_COLUMNS, ReplayResult
 
     z = float(filt.config.to_array()[L.K_Z_INTERVAL])
-    send = out_i[:, 3] == 1
+    send = out_i[3] == 1
     sent = np.flatnonzero(send)
     k_out = sent.size
-    cf = np.compress(send, out_f, axis=0)  # (k_out, 5): one pass, then contiguous-enough columns
-    ci = np.compress(send, out_i, axis=0)
-    s_out = cf[:, 1]
-    sig_out = cf[:, 3]
+    s_out = out_f[1][send]
+    sig_out = out_f[3][send]
     line_out = state.line_row[sent]
     lat_out = np.full(k_out, math.nan)
     lon_out = np.full(k_out, math.nan)
@@ -388,16 +386,16 @@ def _replay_scanned(scan, track, options):
     start_seq = options.config.link.start_seq
     seq_out = (start_seq + link.outputs + np.arange(k_out)) & 0xFFFF
     fast_cols = {
-        "epoch": cf[:, 0],
+        "epoch": out_f[0][send],
         "arc_length": s_out,
         "seq": seq_out.astype(np.int64),
         "retransmit": np.zeros(k_out, dtype=np.int64),
         "arrival": scan.time_s[mrows[sent]],
-        "speed": cf[:, 2],
+        "speed": out_f[2][send],
         "sigma": sig_out,
         "interval_low": s_out - z * sig_out,
         "interval_high": s_out + z * sig_out,
-        "status": ci[:, 1],
+        "status": out_i[1][send],
         "line_id": line_out,
         "lat": lat_out,
         "lon": lon_out,
@@ -413,8 +411,8 @@ def _replay_scanned(scan, track, options):
     updates = {
         "t": np.concatenate([np.array([u[0] for u in prefix.upd], dtype=float), t_s]),
         "kind": np.concatenate([np.array([u[1] for u in prefix.upd], dtype=object), kinds]),
-        "outcome": np.concatenate([np.array([u[2] for u in prefix.upd], dtype=np.int64), out_i[:, 0]]),
-        "nis": np.concatenate([np.array([u[3] for u in prefix.upd], dtype=float), out_f[:, 4]]),
+        "outcome": np.concatenate([np.array([u[2] for u in prefix.upd], dtype=np.int64), out_i[0]]),
+        "nis": np.concatenate([np.array([u[3] for u in prefix.upd], dtype=float), out_f[4]]),
     }
     grows = rows[ok & (st == 3)]
     gv = dec.values[grows]
@@ -457,7 +455,7 @@ def _replay_scanned(scan, track, options):
     c["processed"] += nm
     if state.stale[0]:
         c["stale_not_sent"] += int(state.stale[0])
-    pairs = np.bincount(kind * 16 + out_i[:, 0], minlength=16 * 16) if nm else np.zeros(0, dtype=np.int64)
+    pairs = np.bincount(kind * 16 + out_i[0], minlength=16 * 16) if nm else np.zeros(0, dtype=np.int64)
     for code in np.flatnonzero(pairs).tolist():
         kd, oc = divmod(code, 16)
         c[f"outcome_{_KIND_NAME[kd]}_{Outcome(oc).name.lower()}"] += int(pairs[code])
@@ -478,7 +476,8 @@ def _replay_scanned(scan, track, options):
         "exact_prefix_datagrams": h,
         "compiled_datagrams": compiled,
         "python_filter_steps": state.python_steps,
-        "handed_back_at_junctions": state.undone,
+        "handed_back_at_junctions": state.branched,
+        "undone_for_scores": state.undone,
         "compiled_fraction": compiled / n,
         "retransmissions_simulated": "exact prefix only",
     }
@@ -514,13 +513,14 @@ class _FilterRun:
         self.filt = filt
         self.cfg = cfg.to_array()
         self.cap = 2 * int(cfg.max_hypotheses) + 2  # a reversal may double the hypotheses before pruning
-        self.out_f = np.zeros((nm, 5))
-        self.out_i = np.zeros((nm, 4), dtype=np.int64)
+        self.out_f = np.zeros((5, nm))  # one contiguous row per quantity (see run_segment)
+        self.out_i = np.zeros((4, nm), dtype=np.int64)
         self.line_row = np.full(nm, -1, dtype=np.int64)
         self.last = np.array([last_epoch, last_s])
         self.stale = np.zeros(1, dtype=np.int64)
         self.python_steps = 0
-        self.undone = 0  #: measurements handed to TrackFilter after being undone (branches, scores)
+        self.undone = 0  #: measurements handed to TrackFilter after being undone (scores not finite)
+        self.branched = 0  #: measurements after which TrackFilter._spawn_branches ran (junction windows)
         self.python_est: dict[int, object] = {}
         self._junc: dict = {}
         shape = (self.cap,)
@@ -626,7 +626,7 @@ class _FilterRun:
         j = int(j)
         if why == STOP_UNDONE:
             self.undone += 1
-        if j > i:
+        if j > i or why == STOP_AFTER:
             self.line_row[i:j] = line.line_id
             new = []
             for q in range(int(self.ns[0])):
@@ -644,17 +644,26 @@ class _FilterRun:
                 )
             f._hyps = new
             f._reported = int(self.ns[1])
+        if why == STOP_AFTER:  # the last statement of TrackFilter.process, then the row's output
+            self.branched += 1
+            f._spawn_branches()
+            self.output_row(j, fresh_min[j])
+            j += 1
         return j
 
     def python_row(self, i: int, upd, fresh_min: float) -> None:
         """Row i went through TrackFilter.process: record it and apply the output rule."""
         self.python_steps += 1
-        self.out_f[i, 4] = math.nan if upd.nis is None else float(upd.nis)
-        self.out_i[i, 0] = int(upd.outcome)
+        self.out_f[4, i] = math.nan if upd.nis is None else float(upd.nis)
+        self.out_i[0, i] = int(upd.outcome)
+        self.output_row(i, fresh_min)
+
+    def output_row(self, i: int, fresh_min: float) -> None:
+        """The filter's estimate after row i, and the listener's output rule on it."""
         est = self.filt.estimate()
         epoch, s = est.epoch_s, est.arc_length_m
-        self.out_f[i, 0:4] = (epoch, s, est.speed_mps, est.sigma_s_m)
-        self.out_i[i, 1] = int(est.status)
+        self.out_f[0:4, i] = (epoch, s, est.speed_mps, est.sigma_s_m)
+        self.out_i[1, i] = int(est.status)
         self.line_row[i] = -1 if est.line_id is None else est.line_id
         send = 0
         if math.isfinite(epoch) and math.isfinite(s):
@@ -666,14 +675,16 @@ class _FilterRun:
                 last[0] = epoch
                 last[1] = s
                 self.python_est[i] = est
-        self.out_i[i, 3] = send
+        self.out_i[3, i] = send
 
     def estimate_of(self, i: int, z: float, lat: float, lon: float):
         """The Estimate the listener holds after the output of row i (for the metrics snapshot)."""
         est = self.python_est.get(i)
         if est is not None:
             return est
-        return _estimate_row(self.filt, int(self.line_row[i]), self.out_f[i], self.out_i[i], z, lat, lon)
+        return _estimate_row(
+            self.filt, int(self.line_row[i]), self.out_f[:, i], self.out_i[:, i], z, lat, lon
+        )
 
 
 def _estimate_row(filt, line_id: int, f, i, z, lat, lon):
