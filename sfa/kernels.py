@@ -20,6 +20,8 @@ import numpy as np
 from numba import njit
 
 from sfa.layout import (
+    A_BA_AT_SLIP,
+    A_BA_SIG_AT_SLIP,
     A_CUSUM_N,
     A_CUSUM_P,
     A_DIR,
@@ -27,6 +29,7 @@ from sfa.layout import (
     A_FX_MEAN,
     A_FX_VAR,
     A_FY,
+    A_FZ,
     A_GPS_E,
     A_GPS_HOLD,
     A_GPS_N,
@@ -34,6 +37,8 @@ from sfa.layout import (
     A_GPS_TO,
     A_GYRO_OK,
     A_GZ,
+    A_IMU_FAULT_T,
+    A_IMU_SAME,
     A_IMU_TO,
     A_INIT,
     A_LAST_NIS_GPS,
@@ -46,6 +51,7 @@ from sfa.layout import (
     A_REJ_MAXDEV,
     A_SLIP,
     A_SLIP_BAD,
+    A_SLIP_END_T,
     A_SLIP_GOOD,
     A_SLIP_T0,
     A_STEP_FLAG,
@@ -58,6 +64,8 @@ from sfa.layout import (
     A_T_STATE,
     A_WK_K,
     A_WK_PHT,
+    A_WX,
+    A_WY,
     BA,
     BG,
     C_COV_REPAIR,
@@ -73,8 +81,10 @@ from sfa.layout import (
     C_GYRO_GATED,
     C_GYRO_OK,
     C_IMU_BAD,
+    C_IMU_FAULT,
     C_IMU_LATE,
     C_IMU_OK,
+    C_IMU_STUCK,
     C_IMU_TIMEOUT,
     C_INIT,
     C_NOT_INIT,
@@ -111,6 +121,9 @@ from sfa.layout import (
     K_GYRO_MIN_SPEED,
     K_GYRO_SIGMA,
     K_GYRO_TILT,
+    K_IMU_FAULT_HOLD,
+    K_IMU_FAULT_MIN,
+    K_IMU_STUCK_N,
     K_IMU_TIMEOUT,
     K_INIT_SIGMA_BA,
     K_INIT_SIGMA_BG,
@@ -136,6 +149,7 @@ from sfa.layout import (
     K_Q_SG,
     K_REACQ_CONSIST_M,
     K_REACQ_S,
+    K_SLIP_BA_SIGMA,
     K_SLIP_CONFIRM_N,
     K_SLIP_MAX_S,
     K_SLIP_RELEASE_N,
@@ -161,6 +175,8 @@ from sfa.layout import (
     R_GNSS_REJECTING,
     R_GNSS_STEP,
     R_GPS_TIMEOUT,
+    R_IMU_FAULT,
+    R_IMU_STUCK,
     R_IMU_TIMEOUT,
     R_NO_MOTION_SENSOR,
     R_NOT_INIT,
@@ -546,6 +562,10 @@ def status_of(x, P, aux, cfg, t):
         bits |= R_GNSS_RAMP
     if aux[A_STILL] != 0.0:
         bits |= R_STANDSTILL
+    if cfg[K_IMU_STUCK_N] > 0.0 and aux[A_IMU_SAME] >= cfg[K_IMU_STUCK_N]:
+        bits |= R_IMU_STUCK
+    if t - aux[A_IMU_FAULT_T] <= cfg[K_IMU_FAULT_HOLD]:
+        bits |= R_IMU_FAULT
     var = P[S, S]
     sigma = math.sqrt(var) if var > 0.0 else 0.0
     if sigma > cfg[K_LOST_SIGMA]:
@@ -616,6 +636,10 @@ def step_init(x, P, aux, cnt, mem, cfg, ts, tg, t, s, v, direction):
     aux[A_IMU_TO] = 0.0
     aux[A_ODO_TO] = 0.0
     aux[A_GPS_TO] = 0.0
+    aux[A_IMU_SAME] = 0.0
+    aux[A_IMU_FAULT_T] = -math.inf
+    aux[A_SLIP_END_T] = -math.inf
+    aux[A_BA_SIG_AT_SLIP] = 0.0
     mem_reset(mem)
     cnt[C_INIT] += 1
     condition_cov(P, cfg, cnt)
@@ -670,8 +694,9 @@ def mem_rotate(x, P, aux, mem, cfg, t):
 
 
 @njit(cache=True)
-def rewind_imu_only(x, P, aux, cnt, cfg, ts, tg, mem):
-    """Restore the older snapshot and re-propagate to the current time with the IMU alone.
+def rewind_imu_only(x, P, aux, cnt, cfg, ts, tg, mem, ba_var_add):
+    """Restore the older snapshot, add ``ba_var_add`` [m^2/s^4] to the accelerometer bias variance
+    there, and re-propagate to the current time with the IMU alone.
 
     Returns False (and changes nothing) when there is no snapshot or the IMU ring does not reach back
     to it."""
@@ -695,6 +720,7 @@ def rewind_imu_only(x, P, aux, cnt, cfg, ts, tg, mem):
     aux[A_T_STATE] = t_snap
     aux[A_FX] = mem[k + 1]
     aux[A_FY] = mem[k + 2]
+    P[BA, BA] += ba_var_add
     for m in range(n):
         i = (head + m) % NH
         ti = mem[MEM_H0 + 3 * i]
@@ -752,6 +778,19 @@ def step_imu(x, P, aux, cnt, mem, cfg, ts, tg, tk, t, fx, fy, fz, wx, wy, wz):
     if aux[A_T_STATE] - t > cfg[K_LATE_TOL]:
         cnt[C_IMU_LATE] += 1
         return O_LATE
+    if cfg[K_IMU_STUCK_N] > 0.0:
+        # a stuck sensor repeats its last output: real sensor noise never repeats on all six axes
+        if fx == aux[A_FX] and fy == aux[A_FY] and fz == aux[A_FZ] and wx == aux[A_WX] \
+                and wy == aux[A_WY] and wz == aux[A_GZ]:
+            aux[A_IMU_SAME] += 1.0
+        else:
+            aux[A_IMU_SAME] = 0.0
+        if aux[A_IMU_SAME] >= cfg[K_IMU_STUCK_N]:
+            # not used: the IMU times out and the filter bridges without it (its time still counts)
+            cnt[C_IMU_STUCK] += 1
+            predict_to(x, P, aux, cnt, cfg, ts, tg, t)
+            check_timeouts(aux, cnt, cfg, t)
+            return O_INVALID
     predict_to(x, P, aux, cnt, cfg, ts, tg, t)
     dt_imu = t - aux[A_T_IMU]
     alpha = dt_imu / cfg[K_FX_EWMA_TAU]
@@ -764,6 +803,9 @@ def step_imu(x, P, aux, cnt, mem, cfg, ts, tg, tk, t, fx, fy, fz, wx, wy, wz):
     aux[A_FX_VAR] = (1.0 - alpha) * (aux[A_FX_VAR] + alpha * d * d)  # EWMA variance
     aux[A_FX] = fx
     aux[A_FY] = fy
+    aux[A_FZ] = fz
+    aux[A_WX] = wx
+    aux[A_WY] = wy
     aux[A_GZ] = wz
     aux[A_T_IMU] = t
     _mem_push_imu(mem, t, fx, fy)
@@ -793,6 +835,22 @@ def step_imu(x, P, aux, cnt, mem, cfg, ts, tg, tk, t, fx, fy, fz, wx, wy, wz):
 
 
 # ============================================================== odometer (+ slip detection, ZUPT)
+@njit(cache=True)
+def check_imu_fault(x, P, aux, cnt, cfg, t):
+    """Fault isolation after a slip: 2 to 10 s after it ended the odometer has determined the
+    accelerometer bias again; if it settled far from its value at the declaration (by more than
+    imu_fault_min and 5 sigma of both), the disagreement was the accelerometer's, not a wheel slip."""
+    since = t - aux[A_SLIP_END_T]
+    if aux[A_SLIP] != 0.0 or not (2.0 <= since <= 10.0) or aux[A_BA_SIG_AT_SLIP] <= 0.0:
+        return
+    d = abs(x[BA] - aux[A_BA_AT_SLIP])
+    if d > cfg[K_IMU_FAULT_MIN] and d > 5.0 * math.sqrt(aux[A_BA_SIG_AT_SLIP] ** 2 + P[BA, BA]):
+        if t - aux[A_IMU_FAULT_T] > cfg[K_IMU_FAULT_HOLD]:
+            cnt[C_IMU_FAULT] += 1  # a new isolated accelerometer fault
+        aux[A_IMU_FAULT_T] = t
+        aux[A_BA_SIG_AT_SLIP] = 0.0  # one verdict per slip
+
+
 @njit(cache=True)
 def step_odo(x, P, aux, cnt, mem, cfg, ts, tg, t, speed, sigma):
     """Odometer speed z = d v (1 + k_o) + noise with the sample's own sigma, slip/slide detection
@@ -835,7 +893,19 @@ def step_odo(x, P, aux, cnt, mem, cfg, ts, tg, t, speed, sigma):
             aux[A_SLIP_T0] = t
             cnt[C_SLIP] += 1
             # the onset samples that passed the gate pulled the speed: rewind and use the IMU alone
-            rewind_imu_only(x, P, aux, cnt, cfg, ts, tg, mem)
+            # odometer and IMU disagree and either may be at fault (wheel slip or accelerometer fault):
+            # widen the accelerometer bias (from the snapshot on) so the IMU-only bridging stays honest
+            # and GNSS can decide
+            aux[A_BA_AT_SLIP] = x[BA]
+            aux[A_BA_SIG_AT_SLIP] = math.sqrt(P[BA, BA])
+            t_back = mem[MEM_A + NX + NX * NX]  # the snapshot the rewind starts from
+            if not rewind_imu_only(x, P, aux, cnt, cfg, ts, tg, mem, cfg[K_SLIP_BA_SIGMA] ** 2):
+                P[BA, BA] += cfg[K_SLIP_BA_SIGMA] ** 2
+                t_back = t - 1.0
+            # if the IMU is the faulty one, the speed error y grew over the detection delay (at most
+            # since the snapshot): the position may be off by up to y tau / 2
+            tau = min(max(t - t_back, 0.0), 5.0)
+            P[S, S] += (0.5 * y * tau) ** 2
         elif aux[A_SLIP] != 0.0 and t - aux[A_SLIP_T0] > cfg[K_SLIP_MAX_S]:
             # the odometer has disagreed for too long: trust it again, widening the speed variance
             P[V, V] += y * y
@@ -843,12 +913,14 @@ def step_odo(x, P, aux, cnt, mem, cfg, ts, tg, t, speed, sigma):
             use = True
             aux[A_SLIP] = 0.0
             aux[A_SLIP_BAD] = 0.0
+            aux[A_SLIP_END_T] = t
             cnt[C_ODO_REANCHOR] += 1
     elif aux[A_SLIP] != 0.0:
         aux[A_SLIP_GOOD] += 1.0
         if aux[A_SLIP_GOOD] >= cfg[K_SLIP_RELEASE_N]:
             aux[A_SLIP] = 0.0
             aux[A_SLIP_BAD] = 0.0
+            aux[A_SLIP_END_T] = t
             use = True
         else:
             cnt[C_ODO_GATED] += 1
@@ -862,6 +934,7 @@ def step_odo(x, P, aux, cnt, mem, cfg, ts, tg, t, speed, sigma):
             outcome = O_ACCEPTED
             if aux[A_SLIP] == 0.0 and aux[A_SLIP_BAD] == 0.0 and nis <= cfg[K_GATE_ODO] / 4.0:
                 mem_rotate(x, P, aux, mem, cfg, t)
+            check_imu_fault(x, P, aux, cnt, cfg, t)
     if still:
         # zero-velocity pseudo-measurement: z = 0 = v + noise(zupt_sigma)
         y = -x[V]

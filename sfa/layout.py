@@ -67,9 +67,17 @@ A_DIR = 32  #: sense of travel: +1 the train's forward is increasing arc length,
 A_FY = 33  #: held lateral specific force from the last IMU sample [m/s^2]
 A_LAST_NIS_GYRO = 34  #: last gyro normalised innovation squared (-1: no gyro update evaluated)
 A_GYRO_OK = 35  #: 1 when the last gyro update was applied
+A_FZ = 36  #: vertical specific force of the last IMU sample [m/s^2] (stuck-sensor detection)
+A_WX = 37  #: roll rate of the last IMU sample [rad/s] (stuck-sensor detection)
+A_WY = 38  #: pitch rate of the last IMU sample [rad/s] (stuck-sensor detection)
+A_IMU_SAME = 39  #: consecutive IMU samples bit-identical to the previous one
+A_BA_AT_SLIP = 40  #: accelerometer bias estimate when the current slip was declared [m/s^2]
+A_BA_SIG_AT_SLIP = 41  #: its sigma then [m/s^2]
+A_IMU_FAULT_T = 42  #: time an accelerometer fault was last isolated (bias moved during a slip) [s]
+A_SLIP_END_T = 43  #: time the last slip ended [s]
 #: Scratch for the updates (no meaning between calls): P H' (two columns of NX) and the gain K (two
 #: columns of NX). Kept in aux so the compiled updates allocate nothing per measurement.
-A_WK_PHT = 36
+A_WK_PHT = 44
 A_WK_K = A_WK_PHT + 2 * NX
 NAUX = A_WK_K + 2 * NX
 
@@ -104,7 +112,9 @@ C_GYRO_GATED = 26
 C_GPS_LATE_USED = 27
 C_SLIP_REWIND = 28
 C_TIME_JUMP = 29
-NCNT = 30
+C_IMU_STUCK = 30
+C_IMU_FAULT = 31
+NCNT = 32
 
 COUNTER_NAMES = (
     "imu_accepted", "imu_late", "imu_invalid",
@@ -115,6 +125,7 @@ COUNTER_NAMES = (
     "initialisations", "covariance_repairs", "not_initialised",
     "gps_held_off", "gps_reacquisitions", "odo_reanchors",
     "gyro_accepted", "gyro_gated", "gps_late_applied", "slip_rewinds", "time_jumps_rejected",
+    "imu_stuck_samples", "imu_faults",
 )
 assert len(COUNTER_NAMES) == NCNT
 
@@ -190,7 +201,11 @@ K_GYRO_TILT = 53  #: 1: the gyro update uses the roll-compensated yaw rate (acce
 K_INIT_SIGMA_SG = 54  #: initial gyro scale-factor sigma [-]
 K_Q_SG = 55  #: gyro scale-factor random walk PSD [1/s]
 K_INIT_SIGMA_MX = 56  #: initial sigma of the yaw gyro's roll-rate coupling [rad]
-NCFG = 57
+K_IMU_STUCK_N = 57  #: bit-identical consecutive IMU samples that declare the IMU stuck (0: off) [samples]
+K_SLIP_BA_SIGMA = 58  #: accelerometer bias sigma added when a slip is declared [m/s^2]
+K_IMU_FAULT_MIN = 59  #: smallest bias change during a slip that isolates an accelerometer fault [m/s^2]
+K_IMU_FAULT_HOLD = 60  #: how long an isolated accelerometer fault stays reported [s]
+NCFG = 61
 
 # ---------------------------------------------------------------- measurement kinds and result codes
 M_IMU = 1
@@ -225,6 +240,8 @@ R_SIGMA_LOST = 1 << 8
 R_NO_MOTION_SENSOR = 1 << 9
 R_STANDSTILL = 1 << 10
 R_GNSS_REJECTING = 1 << 11
+R_IMU_STUCK = 1 << 12
+R_IMU_FAULT = 1 << 13
 
 REASON_NAMES = {
     R_NOT_INIT: "not_initialised",
@@ -239,6 +256,8 @@ REASON_NAMES = {
     R_NO_MOTION_SENSOR: "no_motion_sensor",
     R_STANDSTILL: "standstill",
     R_GNSS_REJECTING: "gnss_rejected",
+    R_IMU_STUCK: "imu_stuck",
+    R_IMU_FAULT: "imu_fault",
 }
 
 #: reasons that are informative only (do not degrade the status)

@@ -59,6 +59,8 @@ def filter_config_for(
                                     imu_spec.gyro_lsb / math.sqrt(12.0)),
         init_sigma_gyro_scale=max(imu_spec.gyro_scale_sigma, 1e-4),
         init_sigma_gyro_roll_coupling_rad=max(imu_spec.misalignment_sigma, 1e-4),
+        # a noise-free IMU repeats its samples legitimately: the stuck detector needs sensor noise
+        imu_stuck_samples=10 if min(imu_spec.accel_noise_density, imu_spec.gyro_noise_density) > 0.0 else 0,
         curvature_sigma_inv_m=CURVATURE_MODEL_INV_M,
         init_sigma_gyro_bias_radps=imu_spec.gyro_bias_sigma,
         init_sigma_odo_scale=odo_spec.scale_sigma,

@@ -18,7 +18,7 @@ from interface_modules.presets import GPS_PRESETS, IMU_PRESETS, ODOMETER_PRESETS
 from sfa import batch
 from sfa import layout as L
 from sfa.presets import filter_config_for
-from sfa.synthetic import build_track_db, generate
+from sfa.synthetic import Faults, build_track_db, generate
 from sfa.track_arrays import TrackArrays
 from tools.bench_table import DOC_BEGIN, DOC_END, Row, to_markdown, update_doc
 from track_db import TrackDatabase
@@ -120,6 +120,32 @@ def test_c_reference_agrees_with_the_compiled_kernels(tmp_path):
     np.testing.assert_allclose(sb[1], sa[1], rtol=1e-6, atol=1e-12)
     # the library is cached by source hash: a second build loads the same file
     assert mod.build(tmp_path / "cache").path == ref.path
+
+
+def test_c_reference_agrees_through_sensor_faults(tmp_path):
+    """Slip (rewind, bias widening, IMU fault isolation), a 0.3 m/s^2 accelerometer bias step and a
+    stuck IMU: the fault-handling branches of the C transliteration take the same path as numba."""
+    mod = _cref()
+    if mod.find_compiler() is None:
+        pytest.skip("no C compiler on this machine")
+    ref = mod.build(tmp_path / "cache")
+    db, packed, line = _packed_run(tmp_path, faults=Faults(odo_slips=((30.0, 34.0, 1.2),)))
+    t0 = packed.t_s[0]
+    imu = packed.kind == L.M_IMU
+    step = imu & (packed.t_s - t0 > 60.0) & (packed.t_s - t0 < 80.0)
+    packed.values[step, 0] += 0.3  # accelerometer bias step on f_x
+    stuck = np.flatnonzero(imu & (packed.t_s - t0 > 90.0) & (packed.t_s - t0 < 95.0))
+    packed.values[stuck] = packed.values[stuck[0]]  # the IMU repeats one sample for 5 s
+    cfg = filter_config_for().to_array()
+    fa, ia, sa = _run(batch.run_packed, packed, line, cfg)
+    fb, ib, sb = _run(ref.run_packed, packed, line, cfg)
+    db.close()
+    cnt = sa[3]
+    assert cnt[L.C_SLIP] >= 2 and cnt[L.C_IMU_STUCK] > 400 and cnt[L.C_IMU_FAULT] >= 1
+    np.testing.assert_array_equal(ia, ib)
+    np.testing.assert_array_equal(sa[3], sb[3])
+    np.testing.assert_allclose(fb[:, 1], fa[:, 1], rtol=0, atol=1e-6)
+    assert np.any(ia[:, 2] & L.R_IMU_STUCK) and np.any(ia[:, 2] & L.R_IMU_FAULT)
 
 
 def test_c_reference_build_reports_a_missing_compiler(tmp_path, monkeypatch):

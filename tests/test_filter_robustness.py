@@ -253,3 +253,60 @@ def test_single_corrupted_future_epoch_is_rejected_a_real_gap_is_not(db, cfg):
     assert f.process(OdoMeas(t1, 0.0, 0.03)).outcome == Outcome.INVALID
     assert f.process(OdoMeas(t1 + 0.05, 0.0, 0.03)).outcome != Outcome.INVALID
     assert f.estimate().epoch_s == t1 + 0.05 and f.counters()["time_jumps_rejected"] == 2
+
+
+def _imu_modified(run, fn):
+    """The run's measurements with each IMU sample passed through fn(i, t_from_start, sample)."""
+    t0 = run.t_s[0]
+    out = []
+    for i, m in enumerate(run.measurements):
+        out.append(fn(i, m.t_s - t0, m) if isinstance(m, ImuMeas) else m)
+    return out
+
+
+def test_accelerometer_bias_step_isolated_and_interval_holds(db, cfg):
+    """A 0.3 m/s^2 step of the along-track accelerometer bias for 40 s: the odometer/IMU disagreement
+    is first taken as a possible slip (either sensor may be wrong), GNSS decides, the accelerometer is
+    reported faulty (imu_fault), the error stays bounded and the interval keeps the truth."""
+    run = generate(db, 1, 200.0, IMU, ODO, GPS, seed=20)
+
+    def biased(_i, t, m):
+        if 60.0 <= t < 100.0:
+            return ImuMeas(m.t_s, (m.f_mps2[0] + 0.3, m.f_mps2[1], m.f_mps2[2]), m.w_radps)
+        return m
+
+    _, est, f = run_filter(db, cfg, _imu_modified(run, biased))
+    t, err = errors_of(run, est)
+    inside = (t - run.t_s[0] >= 60.0) & (t - run.t_s[0] < 110.0)
+    assert np.max(np.abs(err[inside])) < 1.5
+    low = np.array([e.interval_low_m for e in est])[inside]
+    high = np.array([e.interval_high_m for e in est])[inside]
+    s_true = truth_at(run, t[inside])
+    assert np.mean((low <= s_true) & (s_true <= high)) >= 0.99
+    assert f.counters()["imu_faults"] >= 1
+    assert any("imu_fault" in e.reasons for e in est)
+    clean = run_filter(db, cfg, run.measurements)[2]
+    assert clean.counters()["imu_faults"] == 0  # no fault isolated on the clean run
+
+
+def test_stuck_imu_detected_reported_and_bridged(db, cfg):
+    """The IMU repeats one sample for 10 s: declared stuck after 10 identical samples, its samples are
+    not used (reason imu_stuck, then imu_timeout), the filter bridges on the odometer and recovers."""
+    run = generate(db, 1, 120.0, IMU, ODO, GPS, seed=21)
+    frozen = {}
+
+    def stuck(i, t, m):
+        if 50.0 <= t < 60.0:
+            frozen.setdefault("m", m)
+            return ImuMeas(m.t_s, frozen["m"].f_mps2, frozen["m"].w_radps)
+        return m
+
+    updates, est, f = run_filter(db, cfg, _imu_modified(run, stuck))
+    assert f.counters()["imu_stuck_samples"] >= 980
+    during = [e for e in est if 52.0 <= e.epoch_s - run.t_s[0] < 59.0]
+    assert during and all("imu_stuck" in e.reasons and e.status == FilterStatus.DEGRADED for e in during)
+    t, err = errors_of(run, est)
+    assert np.max(np.abs(err)) < 1.0
+    after = [e for e in est if e.epoch_s - run.t_s[0] > 61.0]
+    assert after and "imu_stuck" not in after[-1].reasons
+    assert run_filter(db, cfg, run.measurements)[2].counters()["imu_stuck_samples"] == 0

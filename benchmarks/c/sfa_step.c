@@ -322,6 +322,8 @@ static long status_of(const double *x, const double *P, const double *aux, const
     }
     if (t < aux[A_GPS_HOLD]) bits |= R_GNSS_RAMP;
     if (aux[A_STILL] != 0.0) bits |= R_STANDSTILL;
+    if (cfg[K_IMU_STUCK_N] > 0.0 && aux[A_IMU_SAME] >= cfg[K_IMU_STUCK_N]) bits |= R_IMU_STUCK;
+    if (t - aux[A_IMU_FAULT_T] <= cfg[K_IMU_FAULT_HOLD]) bits |= R_IMU_FAULT;
     double var = PIJ(P, S, S);
     double sigma = var > 0.0 ? sqrt(var) : 0.0;
     if (sigma > cfg[K_LOST_SIGMA]) bits |= R_SIGMA_LOST;
@@ -372,7 +374,7 @@ static void mem_rotate(const double *x, const double *P, const double *aux, doub
 }
 
 static int rewind_imu_only(double *x, double *P, double *aux, long *cnt, const double *cfg, const double *ts,
-                           const double *tg, long nv, double *mem) {
+                           const double *tg, long nv, double *mem, double ba_var_add) {
     if (cfg[K_SNAP_PERIOD] <= 0.0 || mem[MEM_A + SNAP - 1] != 1.0) return 0;
     long k = MEM_A + NX + NX * NX;
     double t_snap = mem[k];
@@ -384,6 +386,7 @@ static int rewind_imu_only(double *x, double *P, double *aux, long *cnt, const d
     aux[A_T_STATE] = t_snap;
     aux[A_FX] = mem[k + 1];
     aux[A_FY] = mem[k + 2];
+    PIJ(P, BA, BA) += ba_var_add;
     for (long m = 0; m < n; m++) {
         long i = (head + m) % NH;
         double ti = mem[MEM_H0 + 3 * i];
@@ -454,6 +457,10 @@ static long step_init(double *x, double *P, double *aux, long *cnt, double *mem,
     aux[A_IMU_TO] = 0.0;
     aux[A_ODO_TO] = 0.0;
     aux[A_GPS_TO] = 0.0;
+    aux[A_IMU_SAME] = 0.0;
+    aux[A_IMU_FAULT_T] = -INFINITY;
+    aux[A_SLIP_END_T] = -INFINITY;
+    aux[A_BA_SIG_AT_SLIP] = 0.0;
     mem_reset(mem);
     cnt[C_INIT] += 1;
     condition_cov(P, cfg, cnt);
@@ -486,6 +493,19 @@ static long step_imu(double *x, double *P, double *aux, long *cnt, double *mem, 
         cnt[C_IMU_LATE] += 1;
         return O_LATE;
     }
+    if (cfg[K_IMU_STUCK_N] > 0.0) {
+        if (fx == aux[A_FX] && fy == aux[A_FY] && fz == aux[A_FZ] && wx == aux[A_WX] && wy == aux[A_WY] &&
+            wz == aux[A_GZ])
+            aux[A_IMU_SAME] += 1.0;
+        else
+            aux[A_IMU_SAME] = 0.0;
+        if (aux[A_IMU_SAME] >= cfg[K_IMU_STUCK_N]) {
+            cnt[C_IMU_STUCK] += 1;
+            predict_to(x, P, aux, cnt, cfg, ts, tg, nv, t);
+            check_timeouts(aux, cnt, cfg, t);
+            return O_INVALID;
+        }
+    }
     predict_to(x, P, aux, cnt, cfg, ts, tg, nv, t);
     double dt_imu = t - aux[A_T_IMU];
     double alpha = dt_imu / cfg[K_FX_EWMA_TAU];
@@ -496,6 +516,9 @@ static long step_imu(double *x, double *P, double *aux, long *cnt, double *mem, 
     aux[A_FX_VAR] = (1.0 - alpha) * (aux[A_FX_VAR] + alpha * d * d);
     aux[A_FX] = fx;
     aux[A_FY] = fy;
+    aux[A_FZ] = fz;
+    aux[A_WX] = wx;
+    aux[A_WY] = wy;
     aux[A_GZ] = wz;
     aux[A_T_IMU] = t;
     mem_push_imu(mem, t, fx, fy);
@@ -526,6 +549,18 @@ static long step_imu(double *x, double *P, double *aux, long *cnt, double *mem, 
 }
 
 /* ------------------------------------------------------------------ odometer (+ slip, ZUPT) */
+static void check_imu_fault(const double *x, const double *P, double *aux, long *cnt, const double *cfg,
+                            double t) {
+    double since = t - aux[A_SLIP_END_T];
+    if (aux[A_SLIP] != 0.0 || !(2.0 <= since && since <= 10.0) || aux[A_BA_SIG_AT_SLIP] <= 0.0) return;
+    double d = fabs(x[BA] - aux[A_BA_AT_SLIP]);
+    if (d > cfg[K_IMU_FAULT_MIN] && d > 5.0 * sqrt(pow(aux[A_BA_SIG_AT_SLIP], 2) + PIJ(P, BA, BA))) {
+        if (t - aux[A_IMU_FAULT_T] > cfg[K_IMU_FAULT_HOLD]) cnt[C_IMU_FAULT] += 1;
+        aux[A_IMU_FAULT_T] = t;
+        aux[A_BA_SIG_AT_SLIP] = 0.0;
+    }
+}
+
 static long step_odo(double *x, double *P, double *aux, long *cnt, double *mem, const double *cfg,
                      const double *ts, const double *tg, long nv, double t, double speed, double sigma) {
     if (!(isfinite(t) && isfinite(speed) && isfinite(sigma)) || sigma <= 0.0 || fabs(speed) > 300.0) {
@@ -565,7 +600,17 @@ static long step_odo(double *x, double *P, double *aux, long *cnt, double *mem, 
             aux[A_SLIP] = 1.0;
             aux[A_SLIP_T0] = t;
             cnt[C_SLIP] += 1;
-            rewind_imu_only(x, P, aux, cnt, cfg, ts, tg, nv, mem);
+            aux[A_BA_AT_SLIP] = x[BA];
+            aux[A_BA_SIG_AT_SLIP] = sqrt(PIJ(P, BA, BA));
+            double t_back = mem[MEM_A + NX + NX * NX];
+            if (!rewind_imu_only(x, P, aux, cnt, cfg, ts, tg, nv, mem, pow(cfg[K_SLIP_BA_SIGMA], 2))) {
+                PIJ(P, BA, BA) += pow(cfg[K_SLIP_BA_SIGMA], 2);
+                t_back = t - 1.0;
+            }
+            double tau = t - t_back;
+            tau = tau > 0.0 ? tau : 0.0;
+            tau = tau < 5.0 ? tau : 5.0;
+            PIJ(P, S, S) += pow(0.5 * y * tau, 2);
         } else if (aux[A_SLIP] != 0.0 && t - aux[A_SLIP_T0] > cfg[K_SLIP_MAX_S]) {
             PIJ(P, V, V) += y * y;
             innovation1(P, V, h_v, KO, h_ko, -1, 0.0, -1, 0.0, -1, 0.0, r, y, &in);
@@ -573,6 +618,7 @@ static long step_odo(double *x, double *P, double *aux, long *cnt, double *mem, 
             use = 1;
             aux[A_SLIP] = 0.0;
             aux[A_SLIP_BAD] = 0.0;
+            aux[A_SLIP_END_T] = t;
             cnt[C_ODO_REANCHOR] += 1;
         }
     } else if (aux[A_SLIP] != 0.0) {
@@ -580,6 +626,7 @@ static long step_odo(double *x, double *P, double *aux, long *cnt, double *mem, 
         if (aux[A_SLIP_GOOD] >= cfg[K_SLIP_RELEASE_N]) {
             aux[A_SLIP] = 0.0;
             aux[A_SLIP_BAD] = 0.0;
+            aux[A_SLIP_END_T] = t;
             use = 1;
         } else {
             cnt[C_ODO_GATED] += 1;
@@ -595,6 +642,7 @@ static long step_odo(double *x, double *P, double *aux, long *cnt, double *mem, 
             outcome = O_ACCEPTED;
             if (aux[A_SLIP] == 0.0 && aux[A_SLIP_BAD] == 0.0 && nis <= cfg[K_GATE_ODO] / 4.0)
                 mem_rotate(x, P, aux, mem, cfg, t);
+            check_imu_fault(x, P, aux, cnt, cfg, t);
         }
     }
     if (still) {
