@@ -369,3 +369,16 @@ def test_pipeline_takes_every_datagram_of_the_real_log(converted):
     fig = self_consistency(est, ref)
     assert fig["fixes"] >= ref["epoch"].size - 1  # the last fix may lie just past the last estimate
     assert np.isfinite(fig["along_track_residual_p95_m"])
+
+
+def test_a_weak_latency_estimate_is_refused_unless_given(short_log, tmp_path):
+    """The latency estimates are trusted only above min_latency_correlation (0.7 by default; the first
+    60 s of the drive reach 0.79 for the speed, 0.997 for the position lead): below it the conversion
+    stops with an error naming the option, and given values are used as they are."""
+    with pytest.raises(ToolError, match="speed latency cannot be estimated .* --latency"):
+        convert_dresden(short_log, tmp_path / "a", DresdenConfig(min_latency_correlation=0.99))
+    conv = convert_dresden(short_log, tmp_path / "b", DresdenConfig(
+        min_latency_correlation=0.99, gnss_latency_s=0.95, position_lead_s=0.45))
+    tim = json.loads(conv.metadata.read_text())["real"]["gnss_timing"]
+    assert tim["speed_latency_s"] == 0.95 and not tim["speed_latency_estimated"]
+    assert tim["position_latency_s"] == pytest.approx(0.50) and not tim["position_lead_estimated"]

@@ -91,6 +91,8 @@ class DresdenConfig:
     #: lag that best aligns the speed column with the speed derived from the positions)
     position_lead_s: float | None = None
     max_latency_s: float = 3.0  #: largest latency searched by the estimates [s]
+    #: an estimated latency whose correlation is below this is refused (pass the value instead) [-]
+    min_latency_correlation: float = 0.7
     #: fixes slower than this (by the speed column) are not used for the track: at a standstill the
     #: positions wander by metres and would add false length and false curvature [m/s]
     track_min_speed_mps: float = 1.0
@@ -347,6 +349,12 @@ def convert_dresden(
                                                  t_tag, speed, cfg.max_latency_s)
     else:
         lead = float(cfg.position_lead_s)
+    for name, corr, flag, known in (("speed latency", lag_corr, "--latency", 0.95),
+                                    ("position lead", lead_corr, "--position-lead", 0.45)):
+        if math.isfinite(corr) and corr < cfg.min_latency_correlation:
+            raise ToolError(
+                f"{path}: the {name} cannot be estimated from this log (best correlation {corr:.2f} < "
+                f"{cfg.min_latency_correlation}); give it with {flag} S (2014-03-26 drive: {known} s)")
     pos_latency = max(latency - lead, 0.0)
     t_speed = t_tag - latency  # sampling time of each speed
     t_pos = t_tag - pos_latency  # sampling time of each position
