@@ -203,6 +203,7 @@ O_INITIALISED = 6
 O_HELD_OFF = 7
 
 LOG_2PI = math.log(2.0 * math.pi)
+BIG = 1e100  #: bound on the factors of an update: products stay far from overflow
 
 
 # ============================================================== track geometry on vertex arrays
@@ -263,6 +264,22 @@ def slope_at(ts, arr, s):
     return (arr[i + 1] - arr[i]) / ds
 
 
+@njit(cache=True)
+def interp_slope_at(ts, arr, s):
+    """``interp_at`` and ``slope_at`` of the same quantity at s with one segment search."""
+    n = ts.shape[0]
+    if s <= ts[0]:
+        return arr[0], 0.0
+    if s >= ts[n - 1]:
+        return arr[n - 1], 0.0
+    i = seg_index(ts, s)
+    ds = ts[i + 1] - ts[i]
+    if ds <= 0.0:
+        return arr[i], 0.0
+    slope = (arr[i + 1] - arr[i]) / ds
+    return arr[i] + (arr[i + 1] - arr[i]) * (s - ts[i]) / ds, slope
+
+
 # ============================================================== covariance hygiene
 @njit(cache=True)
 def _cholesky_ok(P):
@@ -293,9 +310,8 @@ def _cholesky_ok(P):
 
 
 @njit(cache=True)
-def condition_cov(P, cfg, cnt):
-    """Keep P symmetric positive definite: P = (P + P')/2, floor the diagonal, and if a Cholesky
-    factorisation still fails drop the correlations (P = diag(P)). Repairs are counted."""
+def _symmetrise_floor(P, cfg):
+    """P = (P + P')/2 and a floor on the diagonal; True when the floor was hit (or a NaN replaced)."""
     n = P.shape[0]
     pmin = cfg[K_P_MIN_VAR]
     repaired = False
@@ -307,6 +323,15 @@ def condition_cov(P, cfg, cnt):
         if not (P[i, i] >= pmin):  # also catches NaN
             P[i, i] = pmin
             repaired = True
+    return repaired
+
+
+@njit(cache=True)
+def condition_cov(P, cfg, cnt):
+    """Keep P symmetric positive definite: P = (P + P')/2, floor the diagonal, and if a Cholesky
+    factorisation still fails drop the correlations (P = diag(P)). Repairs are counted."""
+    n = P.shape[0]
+    repaired = _symmetrise_floor(P, cfg)
     if not _cholesky_ok(P):
         for i in range(n):
             for j in range(n):
@@ -391,7 +416,13 @@ def predict_to(x, P, aux, cnt, cfg, ts, tg, t):
     for _ in range(n):
         _predict_step(x, P, aux, cfg, ts, tg, h, imu_ok)
     aux[A_T_STATE] = t
-    condition_cov(P, cfg, cnt)
+    # F P F' + Q keeps a positive definite P positive definite: after a short prediction the
+    # symmetrisation and the diagonal floor suffice (every update runs the full Cholesky check);
+    # after a long one (a gap of more than 10 steps) P is checked here as well
+    if n > 10:
+        condition_cov(P, cfg, cnt)
+    elif _symmetrise_floor(P, cfg):
+        cnt[C_COV_REPAIR] += 1
 
 
 # ============================================================== updates (allocation-free)
@@ -432,18 +463,17 @@ def apply_update1(x, P, aux, sm, y, cfg, cnt):
     """Scalar update after ``innovation1``: K = P h' / S ; x = x + K y ; Joseph form
     P = (I - K h) P (I - K h)' + K r K', expanded for the rank-one h as P - K (P h')' - (P h') K' + S K K'.
 
-    The update is abandoned (state unchanged) if it would produce a non-finite value."""
+    The update is abandoned (state unchanged) if it could produce a non-finite value: every factor of
+    the correction is checked finite and below 1e100 in magnitude (so no product can overflow), which
+    costs O(NX) instead of evaluating the O(NX^2) update twice."""
+    if not (math.isfinite(sm) and 0.0 < sm <= BIG):
+        return False
     for i in range(NX):
-        k = aux[A_WK_PHT + i] / sm  # K = P h' S^-1
+        p = aux[A_WK_PHT + i]
+        k = p / sm  # K = P h' S^-1
         aux[A_WK_K + i] = k
-        if not math.isfinite(k) or not math.isfinite(x[i] + k * y):
-            return False
-    for i in range(NX):  # check before writing: the update is all or nothing
-        ki, pi = aux[A_WK_K + i], aux[A_WK_PHT + i]
-        for j in range(NX):
-            kj, pj = aux[A_WK_K + j], aux[A_WK_PHT + j]
-            if not math.isfinite(P[i, j] - (ki * pj + pi * kj) + sm * (ki * kj)):
-                return False
+        if not (abs(p) <= BIG and abs(k) <= BIG and abs(k * y) <= BIG):
+            return False  # also catches NaN
     for i in range(NX):
         x[i] += aux[A_WK_K + i] * y  # x = x + K y
         ki, pi = aux[A_WK_K + i], aux[A_WK_PHT + i]
@@ -814,12 +844,12 @@ def step_imu(x, P, aux, cnt, mem, cfg, ts, tg, tk, t, fx, fy, fz, wx, wy, wz):
     aux[A_LAST_NIS_GYRO] = -1.0
     aux[A_GYRO_OK] = 0.0
     if cfg[K_USE_GYRO] != 0.0 and abs(x[V]) >= cfg[K_GYRO_MIN_SPEED]:
-        k = interp_at(ts, tk, x[S])
+        k, dk_ds = interp_slope_at(ts, tk, x[S])
         c = 1.0  # cos(roll): the cant turns the gyro's z axis away from the vertical
         if cfg[K_GYRO_TILT] != 0.0:
             c = roll_cos(x[V] * x[V] * aux[A_DIR] * k, -cfg[K_GRAVITY], fy, fz)
         g1 = c * (1.0 + x[SG])
-        h_s = g1 * x[V] * slope_at(ts, tk, x[S])  # d/ds of c (1 + s_g) v k(s)
+        h_s = g1 * x[V] * dk_ds  # d/ds of c (1 + s_g) v k(s)
         r = cfg[K_GYRO_SIGMA] ** 2 + (x[V] * cfg[K_CURV_SIGMA]) ** 2  # sensor + v * curvature error
         y = wz - (g1 * x[V] * k + x[BG] + x[MX] * wx)  # y = gz - (c (1 + s_g) v k(s) + b_g + m_x gx)
         # h = [c (1 + s_g) v dk/ds, c (1 + s_g) k, .., 1 (b_g), .., c v k (s_g), gx (m_x)]

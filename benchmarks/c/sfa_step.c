@@ -22,6 +22,7 @@ enum { O_ACCEPTED = 0, O_GATED = 1, O_LATE = 2, O_INVALID = 3, O_NOT_INIT = 4, O
        O_INITIALISED = 6, O_HELD_OFF = 7 };
 
 #define PIJ(P, i, j) ((P)[(i) * NX + (j)])
+#define BIG 1e100
 
 /* ------------------------------------------------------------------ track geometry */
 static long seg_index(const double *ts, long n, double s) {
@@ -84,7 +85,7 @@ static int cholesky_ok(const double *P) {
     return 1;
 }
 
-static void condition_cov(double *P, const double *cfg, long *cnt) {
+static int symmetrise_floor(double *P, const double *cfg) {
     double pmin = cfg[K_P_MIN_VAR];
     int repaired = 0;
     for (int i = 0; i < NX; i++) {
@@ -98,6 +99,11 @@ static void condition_cov(double *P, const double *cfg, long *cnt) {
             repaired = 1;
         }
     }
+    return repaired;
+}
+
+static void condition_cov(double *P, const double *cfg, long *cnt) {
+    int repaired = symmetrise_floor(P, cfg);
     if (!cholesky_ok(P)) {
         for (int i = 0; i < NX; i++)
             for (int j = 0; j < NX; j++)
@@ -171,7 +177,10 @@ static void predict_to(double *x, double *P, double *aux, long *cnt, const doubl
     double h = dt_total / (double)n;
     for (long k = 0; k < n; k++) predict_step(x, P, aux, cfg, ts, tg, nv, h, imu_ok);
     aux[A_T_STATE] = t;
-    condition_cov(P, cfg, cnt);
+    if (n > 10)
+        condition_cov(P, cfg, cnt);
+    else if (symmetrise_floor(P, cfg))
+        cnt[C_COV_REPAIR] += 1;
 }
 
 /* ------------------------------------------------------------------ updates (as sfa/kernels.py) */
@@ -204,16 +213,13 @@ static void innovation1(const double *P, int i0, double h0, int i1, double h1, i
 
 static int apply_update1(double *x, double *P, Innov1 *in, double y, const double *cfg, long *cnt) {
     double sm = in->sm;
+    if (!(isfinite(sm) && 0.0 < sm && sm <= BIG)) return 0;
     for (int i = 0; i < NX; i++) {
-        double k = in->pht[i] / sm;
+        double p = in->pht[i];
+        double k = p / sm;
         in->k[i] = k;
-        if (!isfinite(k) || !isfinite(x[i] + k * y)) return 0;
+        if (!(fabs(p) <= BIG && fabs(k) <= BIG && fabs(k * y) <= BIG)) return 0;
     }
-    for (int i = 0; i < NX; i++)
-        for (int j = 0; j < NX; j++) {
-            double ki = in->k[i], pi = in->pht[i], kj = in->k[j], pj = in->pht[j];
-            if (!isfinite(PIJ(P, i, j) - (ki * pj + pi * kj) + sm * (ki * kj))) return 0;
-        }
     for (int i = 0; i < NX; i++) {
         x[i] += in->k[i] * y;
         double ki = in->k[i], pi = in->pht[i];
@@ -529,10 +535,11 @@ static long step_imu(double *x, double *P, double *aux, long *cnt, double *mem, 
     if (cfg[K_USE_GYRO] != 0.0 && fabs(x[V]) >= cfg[K_GYRO_MIN_SPEED]) {
         Innov1 in;
         double k = interp_at(ts, tk, nv, x[S]);
+        double dk_ds = slope_at(ts, tk, nv, x[S]);
         double c = 1.0;
         if (cfg[K_GYRO_TILT] != 0.0) c = roll_cos(x[V] * x[V] * aux[A_DIR] * k, -cfg[K_GRAVITY], fy, fz);
         double g1 = c * (1.0 + x[SG]);
-        double h_s = g1 * x[V] * slope_at(ts, tk, nv, x[S]);
+        double h_s = g1 * x[V] * dk_ds;
         double r = pow(cfg[K_GYRO_SIGMA], 2) + pow(x[V] * cfg[K_CURV_SIGMA], 2); /* sensor + v * curvature error */
         double y = wz - (g1 * x[V] * k + x[BG] + x[MX] * wx);
         innovation1(P, S, h_s, V, g1 * k, BG, 1.0, SG, c * x[V] * k, MX, wx, r, y, &in);
