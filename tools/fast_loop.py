@@ -41,7 +41,7 @@ STOP_UNDONE = 2  #: measurement i was stepped, then undone (state as before it)
 STOP_AFTER = 3  #: measurement i was processed up to TrackFilter._spawn_branches, which the caller runs
 
 
-@njit(cache=False)
+@njit(cache=False)  # reads sfa.layout slots: a disk cache would keep stale indices
 def _prune(order, ns, X, AUX, length_m, window, prune_ratio, switch_ratio, max_hyps, keep, key):
     """TrackFilter._prune over the hypotheses ``order[:ns[0]]``, reported ``order[ns[1]]`` (finite scores)."""
     nh = ns[0]
@@ -114,7 +114,7 @@ def _prune(order, ns, X, AUX, length_m, window, prune_ratio, switch_ratio, max_h
     ns[0] = kept
 
 
-@njit(cache=False)
+@njit(cache=False)  # reads sfa.layout slots: a disk cache would keep stale indices
 def _score(order, nh, AUX, slot, cap):
     """TrackFilter._score's update (before its prune); False when a score is no longer finite."""
     ok = True
@@ -127,7 +127,7 @@ def _score(order, nh, AUX, slot, cap):
     return ok
 
 
-@njit(cache=False)
+@njit(cache=False)  # reads sfa.layout slots: a disk cache would keep stale indices
 def _spawn_reversals(order, ns, X, PP, AUX, CNT, MEM):
     """TrackFilter._spawn_reversals' additions (mirrored hypotheses); True when any was added."""
     nh = ns[0]
@@ -368,7 +368,7 @@ def run_segment(
     return n, DONE
 
 
-@njit(cache=True)
+@njit(cache=False)  # calls sfa.kernels.interp_at: compiled per process like run_segment
 def interp_many(ts, arr, s, valid):
     """``sfa.kernels.interp_at`` per element where ``valid`` and ts[0] <= s <= ts[-1]; NaN elsewhere."""
     out = np.full(s.shape[0], np.nan)

@@ -85,12 +85,14 @@ def try_fast_replay(capture_path, track, options=None):
         return None, FastReplayInfo(False, why)
     from tools.fast_pcap import scan_capture
 
+    t0 = time.perf_counter()
     scan = scan_capture(capture_path, options.port)
+    scan_s = time.perf_counter() - t0
     if isinstance(scan, str):
         return None, FastReplayInfo(False, f"capture: {scan}")
     if scan.time_s.size == 0:
         return None, FastReplayInfo(False, "no datagram to the listener port")
-    return _replay_scanned(scan, track, options)
+    return _replay_scanned(scan, track, options, scan_s)
 
 
 def _options_reason(options) -> str:
@@ -238,14 +240,14 @@ def _first_break(key, ok, seq, h, n, keys, m):
 
 
 # ---------------------------------------------------------------------------------------- main path
-def _replay_scanned(scan, track, options):
+def _replay_scanned(scan, track, options, scan_s: float = 0.0):
     from listener.codec import DecodeError, decode_input
     from tools.fast_clock import clock_supported, replay_strobes, sensor_now
     from tools.fast_decode import decode_batch
     from tools.fast_pack import EPOCH_DOUBLES
     from tools.fast_pcap import SKIP_REASONS, ipv4_text
 
-    timing = {}
+    timing = {"pcap scan": scan_s}
     tick = time.perf_counter()
 
     def lap(name: str) -> None:
