@@ -247,10 +247,11 @@ def test_end_to_end_stop_counters_accuracy_notify(world, tmp_path):
     assert "STOPPING=1" in msgs[-1][1], [m for _, m in msgs[-4:]]
 
 
-def test_sigterm_is_graceful(world, tmp_path):
+@pytest.mark.parametrize("reader", ["batched", "protocol"])
+def test_sigterm_is_graceful(world, tmp_path, reader):
     notify = Notify(tmp_path / "n.sock")
     try:
-        listener, obcu, lport, _ = _start(world, tmp_path, notify=notify)
+        listener, obcu, lport, _ = _start(world, tmp_path, "--set", f"input.reader={reader}", notify=notify)
         dgrams = _datagrams(world["run"])[:1500]
         _send(lport, dgrams, speed=20.0)
         time.sleep(0.3)
@@ -265,6 +266,11 @@ def test_sigterm_is_graceful(world, tmp_path):
     exit_ev = [e for e in _events(tmp_path / "listener.log") if e["event"] == "exit"][-1]
     assert exit_ev["reason"] == "SIGTERM"
     assert exit_ev["input"]["received"] == 1500
+    assert exit_ev["input"]["rejected"] == 0 and exit_ev["service"]["kernel_drops"] == 0
+    ready = [e for e in _events(tmp_path / "listener.log") if e["event"] == "ready"][-1]
+    assert ready["reader"] == reader
+    if os.geteuid() == 0:  # SO_RCVBUFFORCE: the configured 4 MiB whatever net.core.rmem_max says
+        assert ready["receive_buffer_bytes"] >= 4 * 1024 * 1024
 
 
 def test_bad_configuration_fails_at_start_with_one_line(world, tmp_path):
