@@ -226,7 +226,7 @@ def test_live_authenticated_row(tmp_path):
             "name": "live-auth",
             "auth": True,
             "speed": 10.0,
-            "input_link": {"bitflip": 0.02, "replay": 0.02, "garbage_rate_hz": 50.0, "inject_start_s": 2.0},
+            "input_link": {"bitflip": 0.02, "replay": 0.02, "garbage_rate_hz": 50.0, "inject_start_s": 0.5},
             "expect": {"crashes": 0, "auth_bad": 0},
         },
         duration_s=20.0,

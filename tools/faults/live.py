@@ -165,6 +165,16 @@ def run_live(spec: ScenarioSpec, out: Path) -> Observation:
         overrides = [*overrides, "auth.enabled=true", f"auth.key_file={key_file}"]
         auth_args = ["--auth-key-file", str(key_file)]
 
+    notes: list[str] = []
+    wall_s = spec.duration_s / spec.speed
+    for which, imp in (("input_link", spec.input_link), ("output_link", spec.output_link)):
+        injects = imp is not None and (imp.forge_rate_hz > 0 or imp.garbage_rate_hz > 0)
+        late = [a for a, _ in (imp.blackouts if imp is not None else ()) if a >= wall_s]
+        if injects and imp.inject_start_s >= wall_s:
+            late.append(imp.inject_start_s)
+        if late:  # live windows are wall seconds: a row run faster than real time may never reach them
+            notes.append(f"{which}: a window starts at {min(late):g} s of wall time, after the live run's "
+                         f"end ({wall_s:g} s at speed {spec.speed:g}): not exercised live (set speed = 1)")
     ns = Namespace.create(spec) if spec.netns else None
     host = "127.0.0.1"
     listen_host = ns.inner_addr if ns else host
@@ -177,7 +187,6 @@ def run_live(spec: ScenarioSpec, out: Path) -> Observation:
     procs: list[subprocess.Popen] = []
     readers: dict[str, LogReader] = {}
     rss: list[tuple[float, float]] = []
-    notes: list[str] = []
 
     def start(name: str, argv: list[str]) -> subprocess.Popen:
         p = subprocess.Popen(argv, stderr=subprocess.PIPE, stdout=subprocess.DEVNULL, text=True, env=env)
