@@ -72,14 +72,11 @@ class FilterConfig:
     slip_confirm_n: int = 3  #: consecutive gated odometer samples that declare a slip [samples]
     slip_release_n: int = 10  #: consecutive in-gate samples that end it [samples]
     slip_max_s: float = 20.0  #: longest slip before the odometer is trusted again [s]
-    #: accelerometer bias sigma added when a slip is declared: the odometer and the IMU disagree and
-    #: either may be the faulty one (a wheel slip or an accelerometer fault), so the IMU-only bridging
-    #: must not be trusted more than that; GNSS then decides [m/s^2]
+    #: a slip that outlasts slip_max_s is the accelerometer's fault, not the wheels': the speed is
+    #: re-anchored on the odometer, this sigma is added to the accelerometer bias and the arc-length
+    #: variance grows by the distance the odometer travelled beyond the estimate during the slip [m/s^2]
     slip_accel_bias_sigma_mps2: float = 0.2
-    #: smallest change of the accelerometer bias estimate during a slip (and 10 s after) that, above
-    #: 5 sigma of its value at the declaration, isolates an accelerometer fault (reason imu_fault) [m/s^2]
-    imu_fault_min_mps2: float = 0.05
-    imu_fault_hold_s: float = 10.0  #: how long an isolated accelerometer fault stays reported [s]
+    imu_fault_hold_s: float = 10.0  #: how long a declared accelerometer fault stays reported [s]
     #: consecutive bit-identical IMU samples (all six axes) that declare the IMU stuck; a real sensor's
     #: noise never repeats exactly. 0 disables (noise-free simulated IMUs repeat legitimately) [samples]
     imu_stuck_samples: int = 10
@@ -222,6 +219,5 @@ class FilterConfig:
         c[L.K_INIT_SIGMA_MX] = self.init_sigma_gyro_roll_coupling_rad
         c[L.K_IMU_STUCK_N] = self.imu_stuck_samples
         c[L.K_SLIP_BA_SIGMA] = self.slip_accel_bias_sigma_mps2
-        c[L.K_IMU_FAULT_MIN] = self.imu_fault_min_mps2
         c[L.K_IMU_FAULT_HOLD] = self.imu_fault_hold_s
         return c

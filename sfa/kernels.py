@@ -20,8 +20,6 @@ import numpy as np
 from numba import njit
 
 from sfa.layout import (
-    A_BA_AT_SLIP,
-    A_BA_SIG_AT_SLIP,
     A_CUSUM_N,
     A_CUSUM_P,
     A_DIR,
@@ -51,6 +49,7 @@ from sfa.layout import (
     A_REJ_MAXDEV,
     A_SLIP,
     A_SLIP_BAD,
+    A_SLIP_DS,
     A_SLIP_END_T,
     A_SLIP_GOOD,
     A_SLIP_T0,
@@ -61,6 +60,7 @@ from sfa.layout import (
     A_T_IMU,
     A_T_INIT,
     A_T_ODO,
+    A_T_ODO_SEEN,
     A_T_STATE,
     A_WK_K,
     A_WK_PHT,
@@ -122,7 +122,6 @@ from sfa.layout import (
     K_GYRO_SIGMA,
     K_GYRO_TILT,
     K_IMU_FAULT_HOLD,
-    K_IMU_FAULT_MIN,
     K_IMU_STUCK_N,
     K_IMU_TIMEOUT,
     K_INIT_SIGMA_BA,
@@ -669,7 +668,8 @@ def step_init(x, P, aux, cnt, mem, cfg, ts, tg, t, s, v, direction):
     aux[A_IMU_SAME] = 0.0
     aux[A_IMU_FAULT_T] = -math.inf
     aux[A_SLIP_END_T] = -math.inf
-    aux[A_BA_SIG_AT_SLIP] = 0.0
+    aux[A_SLIP_DS] = 0.0
+    aux[A_T_ODO_SEEN] = t
     mem_reset(mem)
     cnt[C_INIT] += 1
     condition_cov(P, cfg, cnt)
@@ -866,22 +866,6 @@ def step_imu(x, P, aux, cnt, mem, cfg, ts, tg, tk, t, fx, fy, fz, wx, wy, wz):
 
 # ============================================================== odometer (+ slip detection, ZUPT)
 @njit(cache=True)
-def check_imu_fault(x, P, aux, cnt, cfg, t):
-    """Fault isolation after a slip: 2 to 10 s after it ended the odometer has determined the
-    accelerometer bias again; if it settled far from its value at the declaration (by more than
-    imu_fault_min and 5 sigma of both), the disagreement was the accelerometer's, not a wheel slip."""
-    since = t - aux[A_SLIP_END_T]
-    if aux[A_SLIP] != 0.0 or not (2.0 <= since <= 10.0) or aux[A_BA_SIG_AT_SLIP] <= 0.0:
-        return
-    d = abs(x[BA] - aux[A_BA_AT_SLIP])
-    if d > cfg[K_IMU_FAULT_MIN] and d > 5.0 * math.sqrt(aux[A_BA_SIG_AT_SLIP] ** 2 + P[BA, BA]):
-        if t - aux[A_IMU_FAULT_T] > cfg[K_IMU_FAULT_HOLD]:
-            cnt[C_IMU_FAULT] += 1  # a new isolated accelerometer fault
-        aux[A_IMU_FAULT_T] = t
-        aux[A_BA_SIG_AT_SLIP] = 0.0  # one verdict per slip
-
-
-@njit(cache=True)
 def step_odo(x, P, aux, cnt, mem, cfg, ts, tg, t, speed, sigma):
     """Odometer speed z = d v (1 + k_o) + noise with the sample's own sigma, slip/slide detection
     against the IMU-propagated speed, and a zero-velocity update at detected standstill."""
@@ -905,6 +889,9 @@ def step_odo(x, P, aux, cnt, mem, cfg, ts, tg, t, speed, sigma):
     y = speed - d * x[V] * (1.0 + x[KO])  # y = z - d v (1 + k_o)
     sm, nis = innovation1(P, aux, V, h_v, KO, h_ko, -1, 0.0, -1, 0.0, -1, 0.0, r, y)
     aux[A_LAST_NIS_ODO] = nis
+    if aux[A_SLIP] != 0.0:  # distance the odometer travelled beyond the estimate since the declaration
+        aux[A_SLIP_DS] += y / h_v * min(max(t - aux[A_T_ODO_SEEN], 0.0), 1.0)
+    aux[A_T_ODO_SEEN] = t
     imu_timely = (t - aux[A_T_IMU]) <= cfg[K_IMU_TIMEOUT]
     still = (
         abs(speed) < cfg[K_STILL_SPEED]
@@ -923,22 +910,18 @@ def step_odo(x, P, aux, cnt, mem, cfg, ts, tg, t, speed, sigma):
             aux[A_SLIP_T0] = t
             cnt[C_SLIP] += 1
             # the onset samples that passed the gate pulled the speed: rewind and use the IMU alone
-            # odometer and IMU disagree and either may be at fault (wheel slip or accelerometer fault):
-            # widen the accelerometer bias (from the snapshot on) so the IMU-only bridging stays honest
-            # and GNSS can decide
-            aux[A_BA_AT_SLIP] = x[BA]
-            aux[A_BA_SIG_AT_SLIP] = math.sqrt(P[BA, BA])
-            t_back = mem[MEM_A + NX + NX * NX]  # the snapshot the rewind starts from
-            if not rewind_imu_only(x, P, aux, cnt, cfg, ts, tg, mem, cfg[K_SLIP_BA_SIGMA] ** 2):
-                P[BA, BA] += cfg[K_SLIP_BA_SIGMA] ** 2
-                t_back = t - 1.0
-            # if the IMU is the faulty one, the speed error y grew over the detection delay (at most
-            # since the snapshot): the position may be off by up to y tau / 2
-            tau = min(max(t - t_back, 0.0), 5.0)
-            P[S, S] += (0.5 * y * tau) ** 2
+            rewind_imu_only(x, P, aux, cnt, cfg, ts, tg, mem, 0.0)
+            aux[A_SLIP_DS] = 0.0
         elif aux[A_SLIP] != 0.0 and t - aux[A_SLIP_T0] > cfg[K_SLIP_MAX_S]:
-            # the odometer has disagreed for too long: trust it again, widening the speed variance
+            # the odometer has disagreed for too long: a wheel does not slip that long, the
+            # accelerometer is the faulty sensor. Re-anchor on the odometer: widen the speed by the
+            # disagreement, the accelerometer bias, and the arc length by the distance the odometer
+            # travelled beyond the estimate during the slip
             P[V, V] += y * y
+            P[BA, BA] += cfg[K_SLIP_BA_SIGMA] ** 2
+            P[S, S] += aux[A_SLIP_DS] ** 2
+            aux[A_IMU_FAULT_T] = t
+            cnt[C_IMU_FAULT] += 1
             sm, nis = innovation1(P, aux, V, h_v, KO, h_ko, -1, 0.0, -1, 0.0, -1, 0.0, r, y)
             use = True
             aux[A_SLIP] = 0.0
@@ -964,7 +947,6 @@ def step_odo(x, P, aux, cnt, mem, cfg, ts, tg, t, speed, sigma):
             outcome = O_ACCEPTED
             if aux[A_SLIP] == 0.0 and aux[A_SLIP_BAD] == 0.0 and nis <= cfg[K_GATE_ODO] / 4.0:
                 mem_rotate(x, P, aux, mem, cfg, t)
-            check_imu_fault(x, P, aux, cnt, cfg, t)
     if still:
         # zero-velocity pseudo-measurement: z = 0 = v + noise(zupt_sigma)
         y = -x[V]

@@ -71,9 +71,9 @@ A_FZ = 36  #: vertical specific force of the last IMU sample [m/s^2] (stuck-sens
 A_WX = 37  #: roll rate of the last IMU sample [rad/s] (stuck-sensor detection)
 A_WY = 38  #: pitch rate of the last IMU sample [rad/s] (stuck-sensor detection)
 A_IMU_SAME = 39  #: consecutive IMU samples bit-identical to the previous one
-A_BA_AT_SLIP = 40  #: accelerometer bias estimate when the current slip was declared [m/s^2]
-A_BA_SIG_AT_SLIP = 41  #: its sigma then [m/s^2]
-A_IMU_FAULT_T = 42  #: time an accelerometer fault was last isolated (bias moved during a slip) [s]
+A_SLIP_DS = 40  #: arc length the odometer travelled beyond the estimate during the current slip [m]
+A_T_ODO_SEEN = 41  #: time of the last valid odometer sample, used or not [s]
+A_IMU_FAULT_T = 42  #: time the accelerometer was last declared faulty (a slip that never ended) [s]
 A_SLIP_END_T = 43  #: time the last slip ended [s]
 #: Scratch for the updates (no meaning between calls): P H' (two columns of NX) and the gain K (two
 #: columns of NX). Kept in aux so the compiled updates allocate nothing per measurement.
@@ -202,10 +202,9 @@ K_INIT_SIGMA_SG = 54  #: initial gyro scale-factor sigma [-]
 K_Q_SG = 55  #: gyro scale-factor random walk PSD [1/s]
 K_INIT_SIGMA_MX = 56  #: initial sigma of the yaw gyro's roll-rate coupling [rad]
 K_IMU_STUCK_N = 57  #: bit-identical consecutive IMU samples that declare the IMU stuck (0: off) [samples]
-K_SLIP_BA_SIGMA = 58  #: accelerometer bias sigma added when a slip is declared [m/s^2]
-K_IMU_FAULT_MIN = 59  #: smallest bias change during a slip that isolates an accelerometer fault [m/s^2]
-K_IMU_FAULT_HOLD = 60  #: how long an isolated accelerometer fault stays reported [s]
-NCFG = 61
+K_SLIP_BA_SIGMA = 58  #: accelerometer bias sigma added when a slip outlasts slip_max_s [m/s^2]
+K_IMU_FAULT_HOLD = 59  #: how long a declared accelerometer fault stays reported [s]
+NCFG = 60
 
 # ---------------------------------------------------------------- measurement kinds and result codes
 M_IMU = 1

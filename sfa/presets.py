@@ -16,7 +16,7 @@ from sfa.errors import FilterConfigError
 #: maps need more: the FilterConfig default is 1.5e-3 1/m. Before the gyro model had the cant (roll
 #: compensation), the gyro scale (SG) and the roll-rate coupling (MX), this value had to stand in for
 #: all three and no single value fitted both tram and regional runs (docs/filter.md, Results).
-CURVATURE_MODEL_INV_M = 1.0e-4
+CURVATURE_MODEL_INV_M = 8.0e-5
 
 
 def filter_config_for(

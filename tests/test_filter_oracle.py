@@ -58,7 +58,8 @@ class Oracle:
             c.init_sigma_s_m ** 2, c.init_sigma_v_mps ** 2, c.init_sigma_accel_bias_mps2 ** 2,
             c.init_sigma_odo_scale ** 2, c.gps_gm_sigma_m ** 2, c.gps_gm_sigma_m ** 2,
             c.init_sigma_gyro_bias_radps ** 2, c.init_sigma_yaw_misalignment_rad ** 2,
-            c.init_sigma_accel_scale ** 2, c.init_sigma_gyro_scale ** 2, c.init_sigma_gyro_roll_coupling_rad ** 2,
+            c.init_sigma_accel_scale ** 2, c.init_sigma_gyro_scale ** 2,
+            c.init_sigma_gyro_roll_coupling_rad ** 2,
         ])
         g = np.interp(m.arc_length_m, self.grade_s, self.grade)
         self.fx = 9.80665 * g / math.sqrt(1 + g * g)  # until the first IMU: constant speed

@@ -264,29 +264,32 @@ def _imu_modified(run, fn):
     return out
 
 
-def test_accelerometer_bias_step_isolated_and_interval_holds(db, cfg):
-    """A 0.3 m/s^2 step of the along-track accelerometer bias for 40 s: the odometer/IMU disagreement
-    is first taken as a possible slip (either sensor may be wrong), GNSS decides, the accelerometer is
-    reported faulty (imu_fault), the error stays bounded and the interval keeps the truth."""
+def test_accelerometer_bias_step_declared_after_slip_max_and_recovered(db, cfg):
+    """A 0.3 m/s^2 step of the along-track accelerometer bias for 60 s: the odometer/IMU disagreement
+    is first taken as a wheel slip (the likelier fault, IMU bridging alone); once it outlasts
+    slip_max_s the accelerometer is declared faulty (imu_fault), the speed re-anchors on the
+    odometer, the arc-length variance is widened by the distance the odometer travelled beyond the
+    estimate, so GNSS is accepted again and the error returns below 1 m. The error during the first
+    slip_max_s is the cost of the ambiguity (docs/filter.md)."""
     run = generate(db, 1, 200.0, IMU, ODO, GPS, seed=20)
 
     def biased(_i, t, m):
-        if 60.0 <= t < 100.0:
+        if 60.0 <= t < 120.0:
             return ImuMeas(m.t_s, (m.f_mps2[0] + 0.3, m.f_mps2[1], m.f_mps2[2]), m.w_radps)
         return m
 
     _, est, f = run_filter(db, cfg, _imu_modified(run, biased))
     t, err = errors_of(run, est)
-    inside = (t - run.t_s[0] >= 60.0) & (t - run.t_s[0] < 110.0)
-    assert np.max(np.abs(err[inside])) < 1.5
-    low = np.array([e.interval_low_m for e in est])[inside]
-    high = np.array([e.interval_high_m for e in est])[inside]
-    s_true = truth_at(run, t[inside])
-    assert np.mean((low <= s_true) & (s_true <= high)) >= 0.99
-    assert f.counters()["imu_faults"] >= 1
+    rel = t - run.t_s[0]
+    assert f.counters()["imu_faults"] >= 1 and f.counters()["odo_reanchors"] >= 1
     assert any("imu_fault" in e.reasons for e in est)
+    declared = min(e.epoch_s - run.t_s[0] for e in est if "imu_fault" in e.reasons)
+    assert 60.0 + cfg.slip_max_s <= declared <= 60.0 + cfg.slip_max_s + 5.0
+    recovered = (rel >= declared + 15.0) & (rel < 120.0)
+    assert recovered.any() and np.max(np.abs(err[recovered])) < 1.0
+    assert np.all(np.isfinite(err))
     clean = run_filter(db, cfg, run.measurements)[2]
-    assert clean.counters()["imu_faults"] == 0  # no fault isolated on the clean run
+    assert clean.counters()["imu_faults"] == 0  # no fault declared on the clean run
 
 
 def test_stuck_imu_detected_reported_and_bridged(db, cfg):

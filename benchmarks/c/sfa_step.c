@@ -466,7 +466,8 @@ static long step_init(double *x, double *P, double *aux, long *cnt, double *mem,
     aux[A_IMU_SAME] = 0.0;
     aux[A_IMU_FAULT_T] = -INFINITY;
     aux[A_SLIP_END_T] = -INFINITY;
-    aux[A_BA_SIG_AT_SLIP] = 0.0;
+    aux[A_SLIP_DS] = 0.0;
+    aux[A_T_ODO_SEEN] = t;
     mem_reset(mem);
     cnt[C_INIT] += 1;
     condition_cov(P, cfg, cnt);
@@ -556,18 +557,6 @@ static long step_imu(double *x, double *P, double *aux, long *cnt, double *mem, 
 }
 
 /* ------------------------------------------------------------------ odometer (+ slip, ZUPT) */
-static void check_imu_fault(const double *x, const double *P, double *aux, long *cnt, const double *cfg,
-                            double t) {
-    double since = t - aux[A_SLIP_END_T];
-    if (aux[A_SLIP] != 0.0 || !(2.0 <= since && since <= 10.0) || aux[A_BA_SIG_AT_SLIP] <= 0.0) return;
-    double d = fabs(x[BA] - aux[A_BA_AT_SLIP]);
-    if (d > cfg[K_IMU_FAULT_MIN] && d > 5.0 * sqrt(pow(aux[A_BA_SIG_AT_SLIP], 2) + PIJ(P, BA, BA))) {
-        if (t - aux[A_IMU_FAULT_T] > cfg[K_IMU_FAULT_HOLD]) cnt[C_IMU_FAULT] += 1;
-        aux[A_IMU_FAULT_T] = t;
-        aux[A_BA_SIG_AT_SLIP] = 0.0;
-    }
-}
-
 static long step_odo(double *x, double *P, double *aux, long *cnt, double *mem, const double *cfg,
                      const double *ts, const double *tg, long nv, double t, double speed, double sigma) {
     if (!(isfinite(t) && isfinite(speed) && isfinite(sigma)) || sigma <= 0.0 || fabs(speed) > 300.0) {
@@ -593,6 +582,13 @@ static long step_odo(double *x, double *P, double *aux, long *cnt, double *mem, 
     innovation1(P, V, h_v, KO, h_ko, -1, 0.0, -1, 0.0, -1, 0.0, r, y, &in);
     double nis = in.nis;
     aux[A_LAST_NIS_ODO] = nis;
+    if (aux[A_SLIP] != 0.0) {
+        double dt = t - aux[A_T_ODO_SEEN];
+        dt = dt > 0.0 ? dt : 0.0;
+        dt = dt < 1.0 ? dt : 1.0;
+        aux[A_SLIP_DS] += y / h_v * dt;
+    }
+    aux[A_T_ODO_SEEN] = t;
     int imu_timely = (t - aux[A_T_IMU]) <= cfg[K_IMU_TIMEOUT];
     double fxv = aux[A_FX_VAR] > 0.0 ? aux[A_FX_VAR] : 0.0;
     int still = fabs(speed) < cfg[K_STILL_SPEED] && imu_timely && sqrt(fxv) < cfg[K_STILL_FX_STD];
@@ -607,19 +603,14 @@ static long step_odo(double *x, double *P, double *aux, long *cnt, double *mem, 
             aux[A_SLIP] = 1.0;
             aux[A_SLIP_T0] = t;
             cnt[C_SLIP] += 1;
-            aux[A_BA_AT_SLIP] = x[BA];
-            aux[A_BA_SIG_AT_SLIP] = sqrt(PIJ(P, BA, BA));
-            double t_back = mem[MEM_A + NX + NX * NX];
-            if (!rewind_imu_only(x, P, aux, cnt, cfg, ts, tg, nv, mem, pow(cfg[K_SLIP_BA_SIGMA], 2))) {
-                PIJ(P, BA, BA) += pow(cfg[K_SLIP_BA_SIGMA], 2);
-                t_back = t - 1.0;
-            }
-            double tau = t - t_back;
-            tau = tau > 0.0 ? tau : 0.0;
-            tau = tau < 5.0 ? tau : 5.0;
-            PIJ(P, S, S) += pow(0.5 * y * tau, 2);
+            rewind_imu_only(x, P, aux, cnt, cfg, ts, tg, nv, mem, 0.0);
+            aux[A_SLIP_DS] = 0.0;
         } else if (aux[A_SLIP] != 0.0 && t - aux[A_SLIP_T0] > cfg[K_SLIP_MAX_S]) {
             PIJ(P, V, V) += y * y;
+            PIJ(P, BA, BA) += pow(cfg[K_SLIP_BA_SIGMA], 2);
+            PIJ(P, S, S) += aux[A_SLIP_DS] * aux[A_SLIP_DS];
+            aux[A_IMU_FAULT_T] = t;
+            cnt[C_IMU_FAULT] += 1;
             innovation1(P, V, h_v, KO, h_ko, -1, 0.0, -1, 0.0, -1, 0.0, r, y, &in);
             nis = in.nis;
             use = 1;
@@ -649,7 +640,6 @@ static long step_odo(double *x, double *P, double *aux, long *cnt, double *mem, 
             outcome = O_ACCEPTED;
             if (aux[A_SLIP] == 0.0 && aux[A_SLIP_BAD] == 0.0 && nis <= cfg[K_GATE_ODO] / 4.0)
                 mem_rotate(x, P, aux, mem, cfg, t);
-            check_imu_fault(x, P, aux, cnt, cfg, t);
         }
     }
     if (still) {
