@@ -11,6 +11,10 @@ distance to them, which is the edge of their upper convex hull spanning the wind
 Jitter therefore never drags the estimate; only the minimum delay (typically tens of microseconds on
 a switched Ethernet) stays as a constant bias, which is below every sensor's sampling period.
 
+An accelerated live run (the simulator at ``--speed X``) has a sensor clock X times faster than the
+listener's; ``ClockConfig.rate = X`` centres the skew bound on it (otherwise the offset would be
+extrapolated flat and every gap between STROBEs would look like a step).
+
 A step larger than ``max_step_s`` between the prediction and a new STROBE (sensor-set clock reset,
 listener restart) discards the window and restarts the estimate, once a second STROBE confirms the
 new offset: a single corrupted timestamp is ignored (counted as ``unconfirmed``).
@@ -70,6 +74,11 @@ class StrobeClock:
         ref = pts[-1][0]
         slope = 0.0
         intercept = max(o for _, o in pts)
+        rate = self._cfg.rate
+        if rate != 1.0:
+            # an accelerated sensor clock: the offset grows by (rate - 1) s per second, from the start
+            slope = rate - 1.0
+            intercept = max(o - slope * (t - ref) for t, o in pts)
         if len(pts) >= 10 and pts[-1][0] - pts[0][0] >= 20.0:
             # Linear-programming skew estimate (Moon, Skelly & Towsley, 1999): the line above every
             # point that minimises the summed vertical distance is the upper-hull edge spanning the
@@ -80,7 +89,10 @@ class StrobeClock:
                 if ta <= t_mean <= tb and tb > ta:
                     slope = (ob - oa) / (tb - ta)
                     break
-            slope = max(-1e-3, min(1e-3, slope))  # |skew| <= 1000 ppm: anything larger is not a clock
+            if rate == 1.0:
+                slope = max(-1e-3, min(1e-3, slope))  # |skew| <= 1000 ppm: anything larger is not a clock
+            else:  # the same bound around the nominal rate
+                slope = max(rate - 1.0 - 1e-3 * rate, min(rate - 1.0 + 1e-3 * rate, slope))
             intercept = max(o - slope * (t - ref) for t, o in pts)
         self._intercept = intercept
         self._slope = slope

@@ -54,6 +54,10 @@ class ClockConfig:
     )
     #: a measurement whose epoch is further ahead of the STROBE clock's sensor time is rejected [s]
     max_future_s: float = 2.0
+    #: nominal rate of the sensor-set clock against the listener's: sensor seconds per listener second.
+    #: 1 on a train (the skew estimate is then bounded to +-1000 ppm around it); the simulator's
+    #: --speed for an accelerated live run, whose sensor clock runs that many times faster [-]
+    rate: float = 1.0
 
 
 @dataclass(frozen=True)
@@ -187,6 +191,7 @@ def _validate(cfg: ListenerConfig) -> None:
     need(cfg.clock.max_pending_undated >= 0, "clock.max_pending_undated", "must be >= 0")
     need(cfg.clock.max_step_s > 0.0, "clock.max_step_s", "must be > 0")
     need(cfg.clock.max_future_s > 0.0, "clock.max_future_s", "must be > 0")
+    need(0.01 <= cfg.clock.rate <= 1000.0, "clock.rate", "must be in 0.01..1000")
     need(cfg.merge.hold_s >= 0.0, "merge.hold_s", "must be >= 0")
     need(cfg.merge.max_pending >= 1, "merge.max_pending", "must be >= 1")
     need(1 <= cfg.link.obcu_port <= 65535, "link.obcu_port", "must be in 1..65535")

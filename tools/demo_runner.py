@@ -152,6 +152,8 @@ def run_demo(opts: DemoOptions) -> int:
                 f'filter.odometer="{sc.odometer.preset}"',
                 "--set",
                 f'filter.gps="{sc.gps.preset}"',
+                "--set",
+                f"clock.rate={opts.speed}",  # the simulated sensor clock runs --speed times faster
             ),
             stderr=subprocess.PIPE,
             stdout=subprocess.DEVNULL,

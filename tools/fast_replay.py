@@ -107,6 +107,8 @@ def _options_reason(options) -> str:
         return "measurements recorded (baselines)"
     if cfg.merge.hold_s != 0.0:
         return f"merge.hold_s = {cfg.merge.hold_s} (the fast path needs 0)"
+    if cfg.clock.rate != 1.0:
+        return f"clock.rate = {cfg.clock.rate} (the fast path's compiled clock has the nominal rate 1)"
     if cfg.link.max_rate_hz != 0.0:
         return f"link.max_rate_hz = {cfg.link.max_rate_hz} (the fast path needs 0)"
     return ""

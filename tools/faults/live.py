@@ -208,7 +208,8 @@ def run_live(spec: ScenarioSpec, out: Path) -> Observation:
     try:
         obcu_target = f"{obcu_host}:{out_proxy_port or obcu_port}"
         listen_argv = _sfa("listen", "--bind", listen_host, "--port", str(listen_port), "--obcu", obcu_target,
-                           "--set", "log.metrics_interval_s=1", *[a for o in overrides for a in ("--set", o)])
+                           "--set", "log.metrics_interval_s=1", "--set", f"clock.rate={spec.speed}",
+                           *[a for o in overrides for a in ("--set", o)])
         listener = start("listener", ns.wrap(listen_argv) if ns else listen_argv)
         wait_ready("listener", listener, READY_TIMEOUT_S)
         listener_pid = ns.child_pid(listener.pid) if ns else listener.pid
