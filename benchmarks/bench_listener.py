@@ -63,6 +63,8 @@ def run_rate(packets, speed: float, wall_s: float, track: str | None, tmp: Path)
         f"127.0.0.1:{oport}",
         "--set",
         "log.metrics_interval_s=1000",
+        "--set",
+        f"clock.rate={speed}",  # the packets are time-compressed: the sensor clock runs `speed` times faster
     ]
     if track:
         args += ["--track", track]
