@@ -50,7 +50,6 @@ from sfa.layout import (
     A_SLIP,
     A_SLIP_BAD,
     A_SLIP_DS,
-    A_SLIP_END_T,
     A_SLIP_GOOD,
     A_SLIP_T0,
     A_STEP_FLAG,
@@ -251,21 +250,9 @@ def interp_at(ts, arr, s):
 
 
 @njit(cache=True)
-def slope_at(ts, arr, s):
-    """Derivative d(arr)/ds of the piecewise-linear per-vertex quantity at s (0 beyond the ends)."""
-    n = ts.shape[0]
-    if s <= ts[0] or s >= ts[n - 1]:
-        return 0.0
-    i = seg_index(ts, s)
-    ds = ts[i + 1] - ts[i]
-    if ds <= 0.0:
-        return 0.0
-    return (arr[i + 1] - arr[i]) / ds
-
-
-@njit(cache=True)
 def interp_slope_at(ts, arr, s):
-    """``interp_at`` and ``slope_at`` of the same quantity at s with one segment search."""
+    """Value (as ``interp_at``) and derivative d(arr)/ds (0 beyond the ends) of the piecewise-linear
+    per-vertex quantity at s, with one segment search."""
     n = ts.shape[0]
     if s <= ts[0]:
         return arr[0], 0.0
@@ -667,7 +654,6 @@ def step_init(x, P, aux, cnt, mem, cfg, ts, tg, t, s, v, direction):
     aux[A_GPS_TO] = 0.0
     aux[A_IMU_SAME] = 0.0
     aux[A_IMU_FAULT_T] = -math.inf
-    aux[A_SLIP_END_T] = -math.inf
     aux[A_SLIP_DS] = 0.0
     aux[A_T_ODO_SEEN] = t
     mem_reset(mem)
@@ -926,14 +912,12 @@ def step_odo(x, P, aux, cnt, mem, cfg, ts, tg, t, speed, sigma):
             use = True
             aux[A_SLIP] = 0.0
             aux[A_SLIP_BAD] = 0.0
-            aux[A_SLIP_END_T] = t
             cnt[C_ODO_REANCHOR] += 1
     elif aux[A_SLIP] != 0.0:
         aux[A_SLIP_GOOD] += 1.0
         if aux[A_SLIP_GOOD] >= cfg[K_SLIP_RELEASE_N]:
             aux[A_SLIP] = 0.0
             aux[A_SLIP_BAD] = 0.0
-            aux[A_SLIP_END_T] = t
             use = True
         else:
             cnt[C_ODO_GATED] += 1

@@ -74,10 +74,9 @@ A_IMU_SAME = 39  #: consecutive IMU samples bit-identical to the previous one
 A_SLIP_DS = 40  #: arc length the odometer travelled beyond the estimate during the current slip [m]
 A_T_ODO_SEEN = 41  #: time of the last valid odometer sample, used or not [s]
 A_IMU_FAULT_T = 42  #: time the accelerometer was last declared faulty (a slip that never ended) [s]
-A_SLIP_END_T = 43  #: time the last slip ended [s]
 #: Scratch for the updates (no meaning between calls): P H' (two columns of NX) and the gain K (two
 #: columns of NX). Kept in aux so the compiled updates allocate nothing per measurement.
-A_WK_PHT = 44
+A_WK_PHT = 43
 A_WK_K = A_WK_PHT + 2 * NX
 NAUX = A_WK_K + 2 * NX
 

@@ -465,7 +465,6 @@ static long step_init(double *x, double *P, double *aux, long *cnt, double *mem,
     aux[A_GPS_TO] = 0.0;
     aux[A_IMU_SAME] = 0.0;
     aux[A_IMU_FAULT_T] = -INFINITY;
-    aux[A_SLIP_END_T] = -INFINITY;
     aux[A_SLIP_DS] = 0.0;
     aux[A_T_ODO_SEEN] = t;
     mem_reset(mem);
@@ -616,7 +615,6 @@ static long step_odo(double *x, double *P, double *aux, long *cnt, double *mem, 
             use = 1;
             aux[A_SLIP] = 0.0;
             aux[A_SLIP_BAD] = 0.0;
-            aux[A_SLIP_END_T] = t;
             cnt[C_ODO_REANCHOR] += 1;
         }
     } else if (aux[A_SLIP] != 0.0) {
@@ -624,7 +622,6 @@ static long step_odo(double *x, double *P, double *aux, long *cnt, double *mem, 
         if (aux[A_SLIP_GOOD] >= cfg[K_SLIP_RELEASE_N]) {
             aux[A_SLIP] = 0.0;
             aux[A_SLIP_BAD] = 0.0;
-            aux[A_SLIP_END_T] = t;
             use = 1;
         } else {
             cnt[C_ODO_GATED] += 1;
