@@ -40,17 +40,6 @@ from pathlib import Path
 import numpy as np
 
 
-def _free_port() -> int:
-    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
-
-
-def _cpu_s(pid: int) -> float:
-    fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
-    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
-
-
 def _rss_mb(pid: int) -> float:
     for line in Path(f"/proc/{pid}/status").read_text().splitlines():
         if line.startswith("VmRSS:"):
@@ -89,41 +78,19 @@ def run_reader(
     packets, reader: str, wall_s: float, rate: float, sets: list[str], tmp: Path, nice: int = 0
 ) -> dict:
     from listener.codec import ImuSample, decode_input
+    from tools.errors import ToolError
+    from tools.processes import free_udp_port, listen_argv, process_cpu_s, start_listener
 
-    lport, oport = _free_port(), _free_port()
+    lport, oport = free_udp_port(), free_udp_port()
     obcu = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
     obcu.bind(("127.0.0.1", oport))
     obcu.settimeout(0.2)
-    args = [
-        sys.executable,
-        "-m",
-        "sfa",
-        "listen",
-        "--bind",
-        "127.0.0.1",
-        "--port",
-        str(lport),
-        "--obcu",
-        f"127.0.0.1:{oport}",
-        "--set",
-        "log.metrics_interval_s=1000",
-        "--set",
-        f"input.reader={reader}",
-    ]
-    for item in sets:
-        args += ["--set", item]
+    args = listen_argv(lport, oport, "log.metrics_interval_s=1000", f"input.reader={reader}", *sets)
     log_path = tmp / f"listener-{reader}{nice:+d}.log"
-    proc = subprocess.Popen(
-        args,
-        stderr=open(log_path, "w"),  # noqa: SIM115
-        stdout=subprocess.DEVNULL,
-        preexec_fn=(lambda: os.nice(nice)) if nice else None,  # noqa: PLW1509 - only os.nice
-    )
-    deadline = time.monotonic() + 300
-    while '"event":"ready"' not in log_path.read_text():
-        if proc.poll() is not None or time.monotonic() > deadline:
-            raise SystemExit(f"listener failed to start: {log_path.read_text()[-2000:]}")
-        time.sleep(0.05)
+    try:
+        proc = start_listener(args, log_path, 300.0, preexec_fn=(lambda: os.nice(nice)) if nice else None)
+    except ToolError as exc:
+        raise SystemExit(str(exc)) from None
     received: dict[float, float] = {}
     stop = threading.Event()
 
@@ -157,7 +124,7 @@ def run_reader(
     for p in chosen:
         due = start + (p.arrival_s - t0)
         if flood is None and due - start >= flood_at:
-            cpu_flood[0] = _cpu_s(proc.pid)
+            cpu_flood[0] = process_cpu_s(proc.pid)
             flood = subprocess.Popen(
                 [sys.executable, __file__, "--flood-child", str(lport), str(rate), str(flood_s)],
                 stdout=subprocess.PIPE,
@@ -165,7 +132,7 @@ def run_reader(
             )
             t_flood = time.monotonic()
         if flood is not None and not cpu_done and time.monotonic() >= t_flood + flood_s:
-            cpu_flood[1], cpu_done = _cpu_s(proc.pid), time.monotonic() - t_flood
+            cpu_flood[1], cpu_done = process_cpu_s(proc.pid), time.monotonic() - t_flood
         delay = due - time.monotonic()
         if delay > 0.0005:
             time.sleep(delay - 0.0003)
@@ -184,7 +151,7 @@ def run_reader(
         json.loads(flood.communicate(timeout=wall_s + 60)[0].strip().splitlines()[-1]) if flood else {}
     )
     if flood is not None and not cpu_done:  # the flood outlasted the sending
-        cpu_flood[1], cpu_done = _cpu_s(proc.pid), time.monotonic() - t_flood
+        cpu_flood[1], cpu_done = process_cpu_s(proc.pid), time.monotonic() - t_flood
     time.sleep(1.0)
     rss1 = _rss_mb(proc.pid)
     proc.terminate()

@@ -22,7 +22,6 @@ import os
 import platform
 import socket
 import struct
-import subprocess
 import sys
 import threading
 import time
@@ -31,50 +30,22 @@ from pathlib import Path
 import numpy as np
 
 
-def _free_port() -> int:
-    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
-
-
-def _cpu_s(pid: int) -> float:
-    fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
-    tick = os.sysconf("SC_CLK_TCK")
-    return (int(fields[11]) + int(fields[12])) / tick
-
-
 def run_rate(packets, speed: float, wall_s: float, track: str | None, tmp: Path) -> dict:
     from listener.codec import ImuSample, decode_input
+    from tools.errors import ToolError
+    from tools.processes import free_udp_port, listen_argv, process_cpu_s, start_listener
 
-    lport, oport = _free_port(), _free_port()
+    lport, oport = free_udp_port(), free_udp_port()
     obcu = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
     obcu.bind(("127.0.0.1", oport))
     obcu.settimeout(0.2)
-    args = [
-        sys.executable,
-        "-m",
-        "sfa",
-        "listen",
-        "--bind",
-        "127.0.0.1",
-        "--port",
-        str(lport),
-        "--obcu",
-        f"127.0.0.1:{oport}",
-        "--set",
-        "log.metrics_interval_s=1000",
-        "--set",
-        f"clock.rate={speed}",  # the packets are time-compressed: the sensor clock runs `speed` times faster
-    ]
-    if track:
-        args += ["--track", track]
+    # the packets are time-compressed: the sensor clock runs `speed` times faster than the listener's
+    args = listen_argv(lport, oport, "log.metrics_interval_s=1000", f"clock.rate={speed}", track=track)
     log_path = tmp / f"listener-{speed:g}x.log"
-    proc = subprocess.Popen(args, stderr=open(log_path, "w"), stdout=subprocess.DEVNULL)
-    deadline = time.monotonic() + 180
-    while '"event":"ready"' not in log_path.read_text():
-        if proc.poll() is not None or time.monotonic() > deadline:
-            raise SystemExit(f"listener failed to start: {log_path.read_text()[-2000:]}")
-        time.sleep(0.05)
+    try:
+        proc = start_listener(args, log_path, 180.0)
+    except ToolError as exc:
+        raise SystemExit(str(exc)) from None
 
     received: dict[float, float] = {}
     stop = threading.Event()
@@ -102,7 +73,7 @@ def run_rate(packets, speed: float, wall_s: float, track: str | None, tmp: Path)
     chosen = [p for p in packets if (p.arrival_s - t0) / speed <= wall_s]
     socks: dict[int, socket.socket] = {}
     sent_at: list[tuple[float, float]] = []  # (epoch, send time) of IMU datagrams
-    cpu0 = _cpu_s(proc.pid)
+    cpu0 = process_cpu_s(proc.pid)
     start = time.monotonic()
     for p in chosen:
         due = start + (p.arrival_s - t0) / speed
@@ -122,7 +93,7 @@ def run_rate(packets, speed: float, wall_s: float, track: str | None, tmp: Path)
         s.sendto(p.payload, ("127.0.0.1", lport))
     send_wall = time.monotonic() - start
     time.sleep(1.0)
-    cpu1 = _cpu_s(proc.pid)
+    cpu1 = process_cpu_s(proc.pid)
     proc.terminate()
     proc.wait(timeout=30)
     stop.set()

@@ -19,17 +19,13 @@ import time
 import pytest
 from helpers_capture import write_capture
 
+from tools.processes import free_udp_port, listen_argv
+
 pytestmark = pytest.mark.slow
 
 
-def _free_port() -> int:
-    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
-
-
 def test_live_capture_replays_to_what_the_listener_sent(tmp_path):
-    tap_port, lport, oport = _free_port(), _free_port(), _free_port()
+    tap_port, lport, oport = free_udp_port(), free_udp_port(), free_udp_port()
     obcu_csv = tmp_path / "obcu.csv"
     obcu = subprocess.Popen(
         [sys.executable, "-m", "sfa", "obcu", "--port", str(oport), "--csv", str(obcu_csv), "--quiet"],
@@ -38,18 +34,7 @@ def test_live_capture_replays_to_what_the_listener_sent(tmp_path):
     )
     log = tmp_path / "listener.log"
     listener = subprocess.Popen(
-        [
-            sys.executable,
-            "-m",
-            "sfa",
-            "listen",
-            "--bind",
-            "127.0.0.1",
-            "--port",
-            str(lport),
-            "--obcu",
-            f"127.0.0.1:{oport}",
-        ],
+        listen_argv(lport, oport),
         stderr=open(log, "w"),
         stdout=subprocess.DEVNULL,
     )

@@ -173,6 +173,8 @@ def test_authenticated_live_senders_against_sfa_listen(tmp_path):
     import subprocess
     import sys
 
+    from tools.processes import listen_argv
+
     key, wrong = tmp_path / "master.hex", tmp_path / "wrong.hex"
     key.write_text(bytes(range(32)).hex() + "\n")
     wrong.write_text(bytes(range(1, 33)).hex() + "\n")
@@ -184,22 +186,7 @@ def test_authenticated_live_senders_against_sfa_listen(tmp_path):
         stdout=subprocess.DEVNULL,
     )
     listener = subprocess.Popen(
-        [
-            sys.executable,
-            "-m",
-            "sfa",
-            "listen",
-            "--bind",
-            "127.0.0.1",
-            "--port",
-            str(lport),
-            "--obcu",
-            f"127.0.0.1:{oport}",
-            "--set",
-            "auth.enabled=true",
-            "--set",
-            f"auth.key_file={key}",
-        ],
+        listen_argv(lport, oport, "auth.enabled=true", f"auth.key_file={key}"),
         stderr=open(log, "w"),  # noqa: SIM115
         stdout=subprocess.DEVNULL,
     )

@@ -153,39 +153,18 @@ class SoakRun:
     def _run(self) -> None:
         from interface_modules.scenario import load_scenario
         from interface_modules.tracks import database_path
+        from tools.processes import free_udp_port, listen_argv
 
         sc = load_scenario(SOAK_SCENARIO)
         db = database_path(sc)
         obcu = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
         obcu.bind(("127.0.0.1", 0))
         obcu.settimeout(0.2)
-        lsock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
-        lsock.bind(("127.0.0.1", 0))
-        lport = lsock.getsockname()[1]
-        lsock.close()
+        lport = free_udp_port()
         log_path = self.tmp / "soak-listener.log"
-        listen = [
-            sys.executable,
-            "-m",
-            "sfa",
-            "listen",
-            "--bind",
-            "127.0.0.1",
-            "--port",
-            str(lport),
-            "--obcu",
-            f"127.0.0.1:{obcu.getsockname()[1]}",
-            "--track",
-            str(db),
-            "--set",
-            "log.metrics_interval_s=1000",
-            "--set",
-            f"filter.odometer={sc.odometer.preset}",
-            "--set",
-            f"filter.imu={sc.imu.preset}",
-            "--set",
-            f"filter.gps={sc.gps.preset}",
-        ]
+        listen = listen_argv(lport, obcu.getsockname()[1], "log.metrics_interval_s=1000",
+                             f"filter.odometer={sc.odometer.preset}", f"filter.imu={sc.imu.preset}",
+                             f"filter.gps={sc.gps.preset}", track=str(db))
         stop = threading.Event()
         procs: list[subprocess.Popen] = []
         try:
