@@ -57,6 +57,8 @@ class Observation:
     crash_detail: str = ""
     memory_growth_mb: float | None = None
     latency_p99_ms: float | None = None
+    #: live, injections: p99 age of the outputs due during the injection minus that just before it [ms]
+    latency_delta_ms: float | None = None
     reasons_seen: set[str] = field(default_factory=set)  #: live: reasons from the metrics events
     wall_s: float = 0.0
     notes: list[str] = field(default_factory=list)
@@ -213,7 +215,8 @@ def _checks(row, obs, expect, acc, fault_cov, reasons, deg, rec) -> dict[str, bo
     if "auth_bad" in expect:
         out["auth_bad"] = bool(obs.auth) and obs.auth.get("bad", 0) <= expect["auth_bad"]
     # process-level figures exist in live mode only: elsewhere the check is not run (and said so)
-    for key, value in (("memory_growth_mb", obs.memory_growth_mb), ("latency_p99_ms", obs.latency_p99_ms)):
+    for key, value in (("memory_growth_mb", obs.memory_growth_mb), ("latency_p99_ms", obs.latency_p99_ms),
+                       ("latency_delta_ms", obs.latency_delta_ms)):
         if key in expect:
             if value is None and not obs.mode.startswith("live"):
                 obs.notes.append(f"{key}: live mode only")

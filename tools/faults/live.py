@@ -9,6 +9,22 @@ measured from their start / first datagram, in wall seconds) line up with the st
 Every process writes JSON lines on stderr; they are kept in ``out/<scenario>/*.log``. The listener's
 resident memory is sampled from ``/proc`` while the run lasts.
 
+Injections (forged datagrams, a garbage flood) do not come from the input proxy live: generating
+50,000 datagrams/s in the process that forwards the real stream delays the real stream there, and the
+latency figure would then measure the proxy. The proxy gets the forwarding impairments only (table
+``input_proxy`` of ``links.toml``; forgeries posing as a real sender stay with it, they must leave from
+that sender's upstream socket), and once the proxy logs its start a separate injector process
+(``tools.faults.inject``, table ``input_injector``) sends the rest straight to the listener on the
+proxy's schedule. Its counters are added to the proxy's.
+
+Lag and age: each fresh output's lag is its arrival minus its epoch (scaled by the speed), up to an
+unknown constant; ``age`` is the lag above the smallest lag of the outputs after the first epoch (the
+outputs of the first epoch are the initialisation's, sent before the stream is paced: at speed 1 they
+lead the steady stream by 57 to 85 ms, which taken as the reference added that much to every age).
+``lag.csv`` keeps per fresh output its scheduled time (arrival - age, wall seconds from the
+simulator's start), its arrival and its age. A row with injections also gets the p99 age of the outputs
+scheduled inside the injector's actual window and inside the equally long stretch just before it.
+
 Times in live mode are wall seconds: run blackout scenarios at ``speed = 1`` so that the link
 timeouts (wall clock) and the windows mean the same as on the replay path.
 """
@@ -27,6 +43,7 @@ from pathlib import Path
 
 import numpy as np
 
+from tools.faults.config import Impairments
 from tools.faults.errors import CampaignError
 from tools.faults.evaluate import Observation
 from tools.faults.spec import ScenarioSpec
@@ -135,6 +152,48 @@ def fresh_mask(seq: np.ndarray) -> np.ndarray:
     return mask
 
 
+def split_injections(imp: Impairments) -> tuple[Impairments, Impairments | None]:
+    """(what the input proxy does, what the injector process sends; None: nothing to inject).
+
+    Garbage and forgeries from their own source go to the injector; forgeries posing as a real sender
+    (``forge_on_stream``) stay in the proxy, which alone holds that sender's upstream socket."""
+    import dataclasses
+
+    on_stream = imp.forge_on_stream and imp.forge_rate_hz > 0
+    proxy = dataclasses.replace(imp, garbage_rate_hz=0.0,
+                                forge_rate_hz=imp.forge_rate_hz if on_stream else 0.0)
+    forge = 0.0 if on_stream else imp.forge_rate_hz
+    if forge <= 0 and imp.garbage_rate_hz <= 0:
+        return proxy, None
+    injector = Impairments(
+        forge_rate_hz=forge, forge_count=imp.forge_count, forge_valid_fraction=imp.forge_valid_fraction,
+        garbage_rate_hz=imp.garbage_rate_hz, garbage_max_bytes=imp.garbage_max_bytes,
+        inject_start_s=imp.inject_start_s, inject_end_s=imp.inject_end_s, blackouts=imp.blackouts,
+    ).validate()
+    return proxy, injector
+
+
+def lag_ages(arrival: np.ndarray, epoch: np.ndarray, speed: float) -> np.ndarray:
+    """Age of each fresh output [wall s]: its lag above the smallest lag after the first epoch.
+
+    ``lag = arrival - (epoch - epoch[0]) / speed`` (unknown constant included). The outputs of the first
+    epoch are the initialisation's, sent before the stream is paced: not a reference for the rest
+    (if there are no others, they are their own reference)."""
+    if arrival.size == 0:
+        return np.array([])
+    lag = arrival - (epoch - epoch[0]) / speed
+    steady = epoch != epoch[0]
+    best = lag[steady].min() if steady.any() else lag.min()
+    return lag - best
+
+
+def window_p99_ms(sched: np.ndarray, age: np.ndarray, lo: float, hi: float) -> tuple[float | None, int]:
+    """p99 age [ms] of the outputs scheduled in [lo, hi) and how many there are."""
+    sel = (sched >= lo) & (sched < hi) & np.isfinite(age)
+    n = int(sel.sum())
+    return (float(np.percentile(age[sel], 99) * 1000.0) if n else None), n
+
+
 def run_live(spec: ScenarioSpec, out: Path) -> Observation:
     """Run ``spec`` with real processes on loopback and return what was observed."""
     from interface_modules.offline import generate
@@ -150,8 +209,13 @@ def run_live(spec: ScenarioSpec, out: Path) -> Observation:
     scenario_file = out / "scenario.toml"
     scenario_file.write_text(dumps(spec.scenario_dict()))
     links = {}
+    inject_imp = None
     if spec.input_link is not None:
-        links["input_link"] = spec.input_link.as_dict()
+        links["input_link"] = spec.input_link.as_dict()  # the row's profile (the replay path's)
+        proxy_imp, inject_imp = split_injections(spec.input_link)
+        links["input_proxy"] = proxy_imp.as_dict()
+        if inject_imp is not None:
+            links["input_injector"] = inject_imp.as_dict()
     if spec.output_link is not None:
         links["output_link"] = spec.output_link.as_dict()
     (out / "links.toml").write_text(dumps(links))
@@ -224,7 +288,7 @@ def run_live(spec: ScenarioSpec, out: Path) -> Observation:
         target = f"{listen_host}:{listen_port}"
         if spec.input_link is not None and ns is None:  # in a namespace, netem impairs the input link
             p = start("proxy_in", _sfa("faults", "proxy", "--listen", f"{host}:{in_proxy_port}", "--forward",
-                                       target, "--profile", str(out / "links.toml"), "--table", "input_link",
+                                       target, "--profile", str(out / "links.toml"), "--table", "input_proxy",
                                        "--seed", str(spec.seed), "--idle-exit", "15"))
             wait_ready("proxy_in", p, 60.0)
             target = f"{host}:{in_proxy_port}"
@@ -243,8 +307,21 @@ def run_live(spec: ScenarioSpec, out: Path) -> Observation:
         )
         procs.append(simp)
         budget = spec.duration_s / spec.speed + 90.0
+        injector = None
+        if inject_imp is not None and "proxy_in" not in readers:
+            notes.append("injections not run: they go with the input proxy, which netns mode replaces")
+            inject_imp = None
         while listener.poll() is None:
             time.sleep(0.25)
+            if inject_imp is not None and injector is None:  # the proxy's clock started: inject on it
+                t0 = [ev.get("t_monotonic") for _, ev in readers["proxy_in"].events
+                      if ev.get("event") == "proxy_started"]
+                if t0 and isinstance(t0[0], int | float):
+                    injector = start("injector", [sys.executable, "-m", "tools.faults.inject", "--target",
+                                                  f"{listen_host}:{listen_port}", "--profile",
+                                                  str(out / "links.toml"), "--table", "input_injector",
+                                                  "--seed", str(spec.seed), "--t0", repr(float(t0[0])),
+                                                  "--duration", str(wall_s + 5.0)])
             value = rss_mb(listener_pid)
             if value is not None:
                 rss.append((time.monotonic() - t_start, value))
@@ -301,17 +378,40 @@ def run_live(spec: ScenarioSpec, out: Path) -> Observation:
         if "proxy_in" in readers else []
     first_in = started_in[0] - t_start if started_in else 0.0
     in_blackouts = tuple((a + first_in, d) for a, d in (spec.input_link.blackouts if spec.input_link else ()))
-    if t_arr.size:
-        lag = t_arr - (epoch - epoch[0]) / spec.speed  # wall seconds, up to a constant
-        age = lag - lag.min()
-    else:
-        age = np.array([])
+    age = lag_ages(t_arr, epoch, spec.speed)  # wall seconds
+    sched = arrival - age  # when each output's epoch was due, on the arrival axis (s from the sim start)
+    np.savetxt(out / "lag.csv", np.column_stack([sched, arrival, age * 1000.0]).reshape(-1, 3), delimiter=",",
+               header="sched_s,arrival_s,age_ms", comments="", fmt="%.6f")
     proxies = {}
     for name in ("proxy_in", "proxy_out"):
         ev = readers[name].last("proxy_exit") if name in readers else None
         proxies[name] = {k: v for k, v in (ev or {}).items() if k != "event" and isinstance(v, int)}
         if name in readers and ev is None:
             notes.append(f"{name}: no exit counters")
+    injected: dict = {}
+    latency_window = None
+    if "injector" in readers:
+        ev = readers["injector"].last("injector_exit")
+        if ev is None:
+            notes.append("injector: no exit counters")
+        else:
+            injected = {k: v for k, v in ev.items() if k != "event"}
+            for key in ("forged_valid", "forged_invalid", "garbage", "emitted"):
+                proxies["proxy_in"][key] = proxies["proxy_in"].get(key, 0) + int(ev.get(key, 0))
+            if ev.get("send_errors"):
+                notes.append(f"injector: {ev['send_errors']} datagrams refused by sendto (not counted sent)")
+            if isinstance(ev.get("t_first"), float) and isinstance(ev.get("t_last"), float):
+                lo, hi = ev["t_first"] - t_start, ev["t_last"] - t_start
+                during, n_d = window_p99_ms(sched, age, lo, hi)
+                before, n_b = window_p99_ms(sched, age, lo - (hi - lo), lo)
+                latency_window = {"window_s": [lo, hi], "during_p99_ms": during, "during_n": n_d,
+                                  "before_p99_ms": before, "before_n": n_b}
+                if during is not None and before is not None:
+                    notes.append(f"lag p99 of the outputs due during the injection ({lo:.1f}-{hi:.1f} s) "
+                                 f"{during:.1f} ms, in the {hi - lo:.1f} s before it {before:.1f} ms "
+                                 f"({during - before:+.1f} ms)")
+    elif inject_imp is not None:
+        notes.append("injector: not started (the input proxy never logged its start)")
     growth = None
     if base_rss is not None and rss:
         growth = max(v for _, v in rss) - base_rss
@@ -328,6 +428,9 @@ def run_live(spec: ScenarioSpec, out: Path) -> Observation:
         output_blackouts=outages,
         sensor_fault_windows=fault_windows(sc, sim), crashes=crashes,
         memory_growth_mb=growth, latency_p99_ms=float(np.percentile(age, 99) * 1000.0) if age.size else None,
+        latency_delta_ms=(latency_window["during_p99_ms"] - latency_window["before_p99_ms"])
+        if latency_window and latency_window["before_p99_ms"] is not None
+        and latency_window["during_p99_ms"] is not None else None,
         reasons_seen=reasons, notes=notes,
         corruption=bool(spec.input_link and (spec.input_link.bitflip > 0 or spec.input_link.forge_on_stream)),
     )
@@ -341,7 +444,8 @@ def run_live(spec: ScenarioSpec, out: Path) -> Observation:
                     "bad": max(0, accepted - originals) if originals is not None else 0}
         notes.append("live auth_bad: accepted datagrams beyond the originals the simulator sent (a replay "
                      "accepted in place of a lost original is not visible live; the replay path checks each)")
-    (out / "live.json").write_text(json.dumps({"metrics": metrics, "proxies": proxies, "rss_mb": rss[-50:],
+    (out / "live.json").write_text(json.dumps({"metrics": metrics, "proxies": proxies, "injector": injected,
+                                               "latency_window": latency_window, "rss_mb": rss[-50:],
                                                "base_rss_mb": base_rss}, indent=1, default=str))
     return obs
 

@@ -73,7 +73,9 @@ class UdpFaultProxy:
         first = self.core.start is None
         self._dispatch_up(self.core.forward(data, client, self._loop.time()))
         if first:  # the windows (blackouts, injections) count from here: say when, for alignment
-            print(json.dumps({"event": "proxy_started"}), file=self.log, flush=True)
+            # (the loop's clock is time.monotonic(): the live campaign's injector process counts from it)
+            print(json.dumps({"event": "proxy_started", "t_monotonic": self.core.start}), file=self.log,
+                  flush=True)
         self._rearm()
 
     def on_upstream(self, data: bytes, client: Hashable) -> None:

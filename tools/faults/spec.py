@@ -53,6 +53,8 @@ EXPECT_KEYS = {
     "reasons": "filter reasons that must be reported during the sensor-fault windows (any of them)",
     "memory_growth_mb": "live: largest listener RSS growth during the run [MB]",
     "latency_p99_ms": "live: largest p99 output lag above the best one [ms]",
+    "latency_delta_ms": "live, injections: largest rise of the p99 output lag during the injection window "
+                        "over the equally long stretch before it [ms]",
     "auth_bad": "authenticated link: most accepted datagrams that are not a first copy of an original",
 }
 
