@@ -103,16 +103,26 @@ class FaultCore:
         return st
 
     def _emit(self, out: list[Emit], t: float, data: bytes, sender: Hashable, st: _Sender | None,
-              valid: bool = True) -> float:
+              valid: bool = True, advance: bool = True) -> float:
+        """Emit ``data`` at ``t`` or later (after the sender's previous emission).
+
+        ``advance``: the datagram is the newest of its sender in sequence order, so drops counted so far
+        lie before it and a receiver sees them as gaps. Not so for a held datagram released later (its
+        place was settled when it was held), a replay, or a copy."""
         if st is not None:
-            if valid:
-                st.forwarded = True
-                st.drops_since_forward = 0
+            if valid and advance:
+                self._settle(st)
             t = max(t, st.last_send + _EPS_S)
             st.last_send = t
         out.append((t, data, sender))
         self.counters["emitted"] += 1
         return t
+
+    @staticmethod
+    def _settle(st: _Sender) -> None:
+        """A valid datagram of ``st`` will go out: the drops before it in sequence order are visible."""
+        st.forwarded = True
+        st.drops_since_forward = 0
 
     # ------------------------------------------------------------------ client -> upstream
     def forward(self, data: bytes, sender: Hashable, now: float) -> list[Emit]:
@@ -146,6 +156,8 @@ class FaultCore:
         t = now + imp.delay_s + (rng.uniform(0.0, imp.jitter_s) if imp.jitter_s > 0.0 else 0.0)
         if st.held is None and imp.reorder > 0.0 and rng.random() < imp.reorder:
             st.held = (payload, now + imp.reorder_max_s, valid)
+            if valid:  # it goes out later, but its place in the sender's sequence is here
+                self._settle(st)
         else:
             c["forwarded"] += 1
             t = self._emit(out, t, payload, sender, st, valid)
@@ -154,14 +166,14 @@ class FaultCore:
                 st.held = None
                 c["forwarded"] += 1
                 c["reordered"] += 1
-                t = self._emit(out, t, held, sender, st, held_valid)
+                t = self._emit(out, t, held, sender, st, held_valid, advance=False)
             if imp.duplicate > 0.0 and rng.random() < imp.duplicate:
                 c["duplicated"] += 1
-                t = self._emit(out, t + imp.duplicate_gap_s, payload, sender, st, valid)
+                t = self._emit(out, t + imp.duplicate_gap_s, payload, sender, st, valid, advance=False)
         if imp.replay > 0.0 and st.history and rng.random() < imp.replay:
             old = st.history[int(rng.integers(0, len(st.history)))]
             c["replayed"] += 1
-            self._emit(out, t, old, sender, st)
+            self._emit(out, t, old, sender, st, advance=False)
         if imp.replay > 0.0:
             st.history.append(original)
         return out
@@ -185,7 +197,7 @@ class FaultCore:
         self.counters["forwarded"] += 1
         self.counters["reorder_expired"] += 1
         out: list[Emit] = []
-        self._emit(out, at, held, sender, st, valid)
+        self._emit(out, at, held, sender, st, valid, advance=False)
         return out
 
     # ------------------------------------------------------------------ upstream -> client
