@@ -128,7 +128,7 @@ def _score(order, nh, AUX, slot, cap):
 
 
 @njit(cache=False)  # reads sfa.layout slots: a disk cache would keep stale indices
-def _spawn_reversals(order, ns, X, PP, AUX, CNT, MEM):
+def _spawn_reversals(order, ns, X, PP, AUX, CNT, MEM, cfg):
     """TrackFilter._spawn_reversals' additions (mirrored hypotheses); True when any was added."""
     nh = ns[0]
     cap = X.shape[0]
@@ -156,6 +156,7 @@ def _spawn_reversals(order, ns, X, PP, AUX, CNT, MEM):
             if not used:
                 free = c
                 break
+        K.sync_block(X[h], PP[h], AUX[h], cfg, CNT[h])  # as TrackFilter's _Hypothesis.mirrored
         X[free, :] = X[h, :]
         PP[free, :, :] = PP[h, :, :]
         AUX[free, :] = AUX[h, :]
@@ -163,6 +164,7 @@ def _spawn_reversals(order, ns, X, PP, AUX, CNT, MEM):
         MEM[free, :] = 0.0
         X[free, L.V] = -X[free, L.V]
         AUX[free, L.A_DIR] = -AUX[free, L.A_DIR]
+        AUX[free, L.A_GY_N] = 0.0  # as TrackFilter's _Hypothesis.mirrored
         PP[free, L.V, :] = -PP[free, L.V, :]
         PP[free, :, L.V] = -PP[free, :, L.V]
         order[total] = free
@@ -321,7 +323,7 @@ def run_segment(
             ns[1] = rep
             return i, STOP_UNDONE
         if k == 2 and reversal and AUX[order[ns[1]], L.A_STILL] != 0.0:
-            if _spawn_reversals(order, ns, X, PP, AUX, CNT, MEM):
+            if _spawn_reversals(order, ns, X, PP, AUX, CNT, MEM, cfg):
                 _prune(order, ns, X, AUX, length_m, window, prune_ratio, switch_ratio, max_hyps, keep, key)
         branch = False
         if nj > 0 and (k == 3 or (k == 2 and code == K.O_ACCEPTED)):
