@@ -31,7 +31,9 @@ class FilterConfig:
     # --- gyro (optional update gz = v * curvature(s) + b_g)
     use_gyro: bool = True  #: apply the gyro update gz = v curvature(s) + b_g (see docs/filter.md)
     gyro_sigma_radps: float = 0.005  #: gyro white noise and scale error per sample [rad/s]
-    curvature_sigma_inv_m: float = 1.5e-3  #: curvature-model error of the database [1/m] (R += (v sigma)^2)
+    #: curvature-model error of the database, counted once per gyro window [1/m] (R += (v sigma)^2);
+    #: 1.5e-3 / sqrt(5) = 6.7e-4: the information of the per-sample value 1.5e-3 before the gyro window
+    curvature_sigma_inv_m: float = 6.7e-4
     #: compensate the body roll in curves (cant) before the gyro update: the roll angle comes from the
     #: accelerometer's lateral/vertical specific force against the expected (v^2 k(s), -g), and the yaw
     #: rate about the vertical is gy sin(roll) + gz cos(roll) (see docs/filter.md) [-]

@@ -453,6 +453,8 @@ class TrackFilter:
             new.append(h.mirrored(self._cfg))
         if new:
             self._hyps.extend(new)
+            for g in self._hyps:  # gyro windows aligned: the likelihood compares hypotheses at one sample
+                g.aux[L.A_GY_N] = 0.0
             self._prune()
 
     def _spawn_branches(self) -> None:
@@ -486,6 +488,8 @@ class TrackFilter:
                     new.append(h.copy_to(other_line, s_other - (s - s_here), h.spawned, self._cfg, flip=True))
         if new:
             self._hyps.extend(new)
+            for g in self._hyps:  # gyro windows aligned: the likelihood compares hypotheses at one sample
+                g.aux[L.A_GY_N] = 0.0
             self._prune()
 
     def _prune(self) -> None:

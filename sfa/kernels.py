@@ -995,14 +995,16 @@ def step_imu(x, P, aux, cnt, mem, cfg, ts, tg, tk, t, fx, fy, fz, wx, wy, wz):
     aux[A_LAST_NIS_GYRO] = -1.0
     aux[A_GYRO_OK] = 0.0
     if cfg[K_USE_GYRO] != 0.0 and abs(x[V]) >= cfg[K_GYRO_MIN_SPEED]:
+        if aux[A_GY_N] > 0.0 and t - aux[A_GY_T0] > cfg[K_GYRO_AVG_MAX_S]:
+            # the window spans too long: apply what it holds (before this sample's residual, which
+            # must be taken at the state that update leaves)
+            gyro_window_update(x, P, aux, cnt, cfg)
         k, dk_ds = interp_slope_at(ts, tk, x[S], seg_hint(ts, x[S], aux))
         c = 1.0  # cos(roll): the cant turns the gyro's z axis away from the vertical
         if cfg[K_GYRO_TILT] != 0.0:
             c = roll_cos(x[V] * x[V] * aux[A_DIR] * k, -cfg[K_GRAVITY], fy, fz)
         g1 = c * (1.0 + x[SG])
         y = wz - (g1 * x[V] * k + x[BG] + x[MX] * wx)  # y = gz - (c (1 + s_g) v k(s) + b_g + m_x gx)
-        if aux[A_GY_N] > 0.0 and t - aux[A_GY_T0] > cfg[K_GYRO_AVG_MAX_S]:
-            gyro_window_update(x, P, aux, cnt, cfg)  # the window spans too long: apply what it holds
         if aux[A_GY_N] == 0.0:
             aux[A_GY_T0] = t
             aux[A_GY_Y] = 0.0

@@ -169,6 +169,9 @@ def _spawn_reversals(order, ns, X, PP, AUX, CNT, MEM, cfg):
         PP[free, :, L.V] = -PP[free, :, L.V]
         order[total] = free
         total += 1
+    if total > nh:  # as TrackFilter._spawn_reversals: gyro windows aligned across the hypotheses
+        for q in range(total):
+            AUX[order[q], L.A_GY_N] = 0.0
     ns[0] = total
     return total > nh
 
@@ -372,13 +375,17 @@ def run_segment(
 
 @njit(cache=False)  # calls sfa.kernels.interp_at: compiled per process like run_segment
 def interp_many(ts, arr, s, valid):
-    """``sfa.kernels.interp_at`` per element where ``valid`` and ts[0] <= s <= ts[-1]; NaN elsewhere."""
+    """``sfa.kernels.interp_at`` per element where ``valid`` and ts[0] <= s <= ts[-1]; NaN elsewhere.
+
+    The segment search starts from the previous element's segment (``seg_hint``: the same segment as
+    ``interp_at``'s binary search, found in O(1) along a trajectory)."""
     out = np.full(s.shape[0], np.nan)
     lo = ts[0]
     hi = ts[ts.shape[0] - 1]
+    hint = np.zeros(L.NAUX)
     for i in range(s.shape[0]):
         if valid[i] and lo <= s[i] <= hi:
-            out[i] = K.interp_at(ts, arr, s[i])
+            out[i] = K.interp_seg(ts, arr, s[i], K.seg_hint(ts, s[i], hint))
     return out
 
 

@@ -668,14 +668,14 @@ static long step_imu(double *x, double *P, double *aux, long *cnt, double *mem, 
     aux[A_LAST_NIS_GYRO] = -1.0;
     aux[A_GYRO_OK] = 0.0;
     if (cfg[K_USE_GYRO] != 0.0 && fabs(x[V]) >= cfg[K_GYRO_MIN_SPEED]) {
+        /* the window spans too long: apply what it holds, before this sample's residual */
+        if (aux[A_GY_N] > 0.0 && t - aux[A_GY_T0] > cfg[K_GYRO_AVG_MAX_S]) gyro_window_update(x, P, aux, cnt, cfg);
         double dk_ds;
         double k = interp_slope_at(ts, tk, nv, x[S], seg_hint(ts, nv, x[S], aux), &dk_ds);
         double c = 1.0;
         if (cfg[K_GYRO_TILT] != 0.0) c = roll_cos(x[V] * x[V] * aux[A_DIR] * k, -cfg[K_GRAVITY], fy, fz);
         double g1 = c * (1.0 + x[SG]);
         double y = wz - (g1 * x[V] * k + x[BG] + x[MX] * wx);
-        if (aux[A_GY_N] > 0.0 && t - aux[A_GY_T0] > cfg[K_GYRO_AVG_MAX_S])
-            gyro_window_update(x, P, aux, cnt, cfg); /* the window spans too long: apply what it holds */
         if (aux[A_GY_N] == 0.0) {
             aux[A_GY_T0] = t;
             aux[A_GY_Y] = 0.0;
