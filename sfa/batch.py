@@ -156,6 +156,7 @@ def replay(track, config: FilterConfig, measurements=None, packed: Packed | None
     mem = np.zeros(L.NMEM)
     run_packed(packed.kind, packed.t_s, packed.values, x, P, aux, cnt, mem, cfg, line.s_m, line.east_m,
                line.north_m, line.grade, line.curvature_inv_m, out_f, out_i)
+    K.sync_block(x, P, aux, cfg, cnt.copy())  # the final covariance up to the final state time
     return BatchResult(out_i[:, 0], out_f[:, 0], out_f[:, 1], out_f[:, 2], out_f[:, 3], out_i[:, 1],
                        out_i[:, 2], cnt, x, P)
 

@@ -31,7 +31,9 @@ class FilterConfig:
     # --- gyro (optional update gz = v * curvature(s) + b_g)
     use_gyro: bool = True  #: apply the gyro update gz = v curvature(s) + b_g (see docs/filter.md)
     gyro_sigma_radps: float = 0.005  #: gyro white noise and scale error per sample [rad/s]
-    curvature_sigma_inv_m: float = 1.5e-3  #: curvature-model error of the database [1/m] (R += (v sigma)^2)
+    #: curvature-model error of the database, counted once per gyro window [1/m] (R += (v sigma)^2);
+    #: 1.5e-3 / sqrt(5) = 6.7e-4: the information of the per-sample value 1.5e-3 before the gyro window
+    curvature_sigma_inv_m: float = 6.7e-4
     #: compensate the body roll in curves (cant) before the gyro update: the roll angle comes from the
     #: accelerometer's lateral/vertical specific force against the expected (v^2 k(s), -g), and the yaw
     #: rate about the vertical is gy sin(roll) + gz cos(roll) (see docs/filter.md) [-]
@@ -46,6 +48,10 @@ class FilterConfig:
     init_sigma_gyro_roll_coupling_rad: float = 0.0175
     init_sigma_gyro_bias_radps: float = 0.0175  #: initial gyro bias sigma [rad/s]
     gyro_min_speed_mps: float = 2.0  #: smallest speed for the gyro update [m/s]
+    #: consecutive IMU samples whose gyro residuals are averaged into one gyro update (R = sigma^2 / n
+    #: for the white noise; 1: an update per sample) [samples]
+    gyro_average_samples: int = 5
+    gyro_average_max_s: float = 0.1  #: longest time a gyro window spans; older samples are dropped [s]
     # --- odometer
     odo_scale_rw_per_rts: float = 1.0e-5  #: odometer scale-factor random walk [1/sqrt(s)]
     init_sigma_odo_scale: float = 0.01  #: initial odometer scale-factor sigma [fraction]
@@ -131,6 +137,9 @@ class FilterConfig:
                      "init_sigma_v_mps"):
             if not getattr(self, name) > 0:
                 raise FilterConfigError(f"{name} must be > 0, got {getattr(self, name)!r}")
+        if self.gyro_average_samples < 1 or self.gyro_average_samples != int(self.gyro_average_samples):
+            raise FilterConfigError(
+                f"gyro_average_samples must be an integer >= 1, got {self.gyro_average_samples!r}")
         if self.max_hypotheses < 1:
             raise FilterConfigError("max_hypotheses must be >= 1")
 
@@ -217,6 +226,8 @@ class FilterConfig:
         c[L.K_INIT_SIGMA_SG] = self.init_sigma_gyro_scale
         c[L.K_Q_SG] = self.gyro_scale_rw_per_rts ** 2
         c[L.K_INIT_SIGMA_MX] = self.init_sigma_gyro_roll_coupling_rad
+        c[L.K_GYRO_AVG_N] = self.gyro_average_samples
+        c[L.K_GYRO_AVG_MAX_S] = self.gyro_average_max_s
         c[L.K_IMU_STUCK_N] = self.imu_stuck_samples
         c[L.K_SLIP_BA_SIGMA] = self.slip_accel_bias_sigma_mps2
         c[L.K_IMU_FAULT_HOLD] = self.imu_fault_hold_s

@@ -73,12 +73,26 @@ class _Hypothesis:
     def direction(self) -> int:
         return int(self.aux[L.A_DIR])
 
-    def copy_to(self, line: TrackArrays, s_m: float, keys: frozenset, flip: bool = False) -> _Hypothesis:
+    def sync(self, cfg: np.ndarray) -> None:
+        """Bring P up to the state time (``sfa.kernels.sync_block``): before P is copied and transformed."""
+        K.sync_block(self.x, self.P, self.aux, cfg, self.cnt)
+
+    def synced(self, cfg: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Copies of x and P brought up to the state time, leaving this hypothesis as it is (reading the
+        state must not change the filter's arithmetic: a replay that reads it less often gives the same)."""
+        x, P, aux = self.x.copy(), self.P.copy(), self.aux.copy()
+        K.sync_block(x, P, aux, cfg, self.cnt.copy())
+        return x, P
+
+    def copy_to(self, line: TrackArrays, s_m: float, keys: frozenset, cfg: np.ndarray,
+                flip: bool = False) -> _Hypothesis:
         """A copy on ``line`` at ``s_m``; ``flip`` when arc length runs the other way there (s and v
-        change sign, and so do their covariance rows/columns)."""
+        change sign, and so do their covariance rows/columns). Syncs this hypothesis's P first."""
+        self.sync(cfg)
         h = self.clone(line, keys)
         h.x[L.S] = s_m
         h.mem[:] = 0.0  # snapshots are on the other line: not reusable
+        h.aux[L.A_GY_N] = 0.0  # the gyro window's residuals refer to the other line's curvature
         if flip:
             h.x[L.V] = -h.x[L.V]
             h.aux[L.A_DIR] = -h.aux[L.A_DIR]
@@ -87,10 +101,13 @@ class _Hypothesis:
                 h.P[:, i] = -h.P[:, i]
         return h
 
-    def mirrored(self) -> _Hypothesis:
-        """Same place, opposite sense of travel (the train may reverse while standing)."""
+    def mirrored(self, cfg: np.ndarray) -> _Hypothesis:
+        """Same place, opposite sense of travel (the train may reverse while standing). Syncs this
+        hypothesis's P first."""
+        self.sync(cfg)
         h = self.clone()
         h.mem[:] = 0.0
+        h.aux[L.A_GY_N] = 0.0  # (at standstill the gyro window is empty anyway)
         h.x[L.V] = -h.x[L.V]
         h.aux[L.A_DIR] = -h.aux[L.A_DIR]
         h.P[L.V, :] = -h.P[L.V, :]
@@ -186,7 +203,7 @@ class TrackFilter:
         code, bits, sigma = K.status_of(h.x, h.P, h.aux, self._cfg, t_eval)
         s = float(h.x[L.S])
         lat, lon = self._latlon(h.line, s)
-        pv = float(h.P[L.V, L.V])
+        _, pv = K.pending_var_sv(h.P, h.aux)
         return Estimate(
             epoch_s=t,
             arc_length_m=s,
@@ -223,7 +240,8 @@ class TrackFilter:
         if self._hyps:
             h = self._hyps[self._reported]
             out["state"] = {n: float(v) for n, v in zip(L.STATE_NAMES, h.x, strict=True)}
-            out["sigma"] = {n: float(math.sqrt(max(h.P[i, i], 0.0))) for i, n in enumerate(L.STATE_NAMES)}
+            _, p_now = h.synced(self._cfg)
+            out["sigma"] = {n: float(math.sqrt(max(p_now[i, i], 0.0))) for i, n in enumerate(L.STATE_NAMES)}
             out["last_nis_gps"] = float(h.aux[L.A_LAST_NIS_GPS])
             out["last_nis_odo"] = float(h.aux[L.A_LAST_NIS_ODO])
             out["hypotheses"] = [
@@ -237,8 +255,7 @@ class TrackFilter:
         """Copies of the reported hypothesis's state vector and covariance (indices in sfa.layout)."""
         if not self._hyps:
             raise FilterStateError("the filter is not initialised")
-        h = self._hyps[self._reported]
-        return h.x.copy(), h.P.copy()
+        return self._hyps[self._reported].synced(self._cfg)
 
     # ------------------------------------------------------------------ measurements
     def _process_init(self, m: InitMeas) -> Update:
@@ -433,9 +450,11 @@ class TrackFilter:
             if any(g.line.line_id == h.line.line_id and g.direction != h.direction
                    and abs(g.x[L.S] - h.x[L.S]) < 1.0 for g in self._hyps + new):
                 continue
-            new.append(h.mirrored())
+            new.append(h.mirrored(self._cfg))
         if new:
             self._hyps.extend(new)
+            for g in self._hyps:  # gyro windows aligned: the likelihood compares hypotheses at one sample
+                g.aux[L.A_GY_N] = 0.0
             self._prune()
 
     def _spawn_branches(self) -> None:
@@ -464,11 +483,13 @@ class TrackFilter:
                 _, _, de_a, dn_a = K.geom_at(h.line.s_m, h.line.east_m, h.line.north_m, s_here)
                 _, _, de_b, dn_b = K.geom_at(other_line.s_m, other_line.east_m, other_line.north_m, s_other)
                 if de_a * de_b + dn_a * dn_b >= 0.0:
-                    new.append(h.copy_to(other_line, s_other + (s - s_here), h.spawned))
+                    new.append(h.copy_to(other_line, s_other + (s - s_here), h.spawned, self._cfg))
                 else:  # arc length of the other line runs the other way at the junction
-                    new.append(h.copy_to(other_line, s_other - (s - s_here), h.spawned, flip=True))
+                    new.append(h.copy_to(other_line, s_other - (s - s_here), h.spawned, self._cfg, flip=True))
         if new:
             self._hyps.extend(new)
+            for g in self._hyps:  # gyro windows aligned: the likelihood compares hypotheses at one sample
+                g.aux[L.A_GY_N] = 0.0
             self._prune()
 
     def _prune(self) -> None:

@@ -33,6 +33,15 @@ from sfa.layout import (
     A_GPS_N,
     A_GPS_REJ,
     A_GPS_TO,
+    A_GY_HMX,
+    A_GY_HS,
+    A_GY_HSG,
+    A_GY_HV,
+    A_GY_N,
+    A_GY_RC,
+    A_GY_T0,
+    A_GY_TL,
+    A_GY_Y,
     A_GYRO_OK,
     A_GZ,
     A_IMU_FAULT_T,
@@ -44,9 +53,23 @@ from sfa.layout import (
     A_LAST_NIS_ODO,
     A_LOGLIK,
     A_ODO_TO,
+    A_PB_H,
+    A_PB_SB,
+    A_PB_SF,
+    A_PB_SM,
+    A_PB_VB,
+    A_PB_VF,
+    A_PB_VM,
+    A_QB_BB,
+    A_QB_SB,
+    A_QB_SS,
+    A_QB_SV,
+    A_QB_VB,
+    A_QB_VV,
     A_RAMP_T,
     A_REJ_DS,
     A_REJ_MAXDEV,
+    A_SEG,
     A_SLIP,
     A_SLIP_BAD,
     A_SLIP_DS,
@@ -117,6 +140,8 @@ from sfa.layout import (
     K_GPS_TIMEOUT,
     K_GPS_WHITE,
     K_GRAVITY,
+    K_GYRO_AVG_MAX_S,
+    K_GYRO_AVG_N,
     K_GYRO_MIN_SPEED,
     K_GYRO_SIGMA,
     K_GYRO_TILT,
@@ -205,7 +230,7 @@ BIG = 1e100  #: bound on the factors of an update: products stay far from overfl
 
 
 # ============================================================== track geometry on vertex arrays
-@njit(cache=True)
+@njit(cache=True, _nrt=False, error_model="numpy")
 def seg_index(ts, s):
     """Index i of the segment [ts[i], ts[i+1]] holding s (clamped to the first/last segment)."""
     i = np.searchsorted(ts, s, side="right") - 1
@@ -217,7 +242,26 @@ def seg_index(ts, s):
     return i
 
 
-@njit(cache=True)
+@njit(cache=True, _nrt=False, error_model="numpy")
+def seg_hint(ts, s, aux):
+    """``seg_index(ts, s)``, starting from the segment of the previous lookup (aux[A_SEG]): O(1) while s
+    moves by at most one segment between lookups, and always the same answer as ``seg_index``."""
+    n = ts.shape[0]
+    if s >= ts[n - 1]:  # beyond the end (searchsorted: n, clamped to the last segment)
+        return n - 2
+    i = int(aux[A_SEG])
+    if 0 <= i <= n - 2 and ts[i] <= s:
+        if s < ts[i + 1]:
+            return i
+        if i + 1 <= n - 2 and s < ts[i + 2]:  # ts[i + 1] <= s: the next segment
+            aux[A_SEG] = i + 1
+            return i + 1
+    i = seg_index(ts, s)
+    aux[A_SEG] = i
+    return i
+
+
+@njit(cache=True, _nrt=False, error_model="numpy")
 def geom_at(ts, te, tn, s):
     """Point h(s) = (east, north) [m] and its derivative dh/ds (the segment tangent) at arc length s.
 
@@ -234,31 +278,35 @@ def geom_at(ts, te, tn, s):
     return te[i] + de * u, tn[i] + dn * u, de, dn
 
 
-@njit(cache=True)
+@njit(cache=True, _nrt=False, error_model="numpy")
 def interp_at(ts, arr, s):
     """Piecewise-linear value of a per-vertex quantity at s, held constant beyond the ends."""
+    return interp_seg(ts, arr, s, seg_index(ts, s))
+
+
+@njit(cache=True, _nrt=False, error_model="numpy")
+def interp_seg(ts, arr, s, i):
+    """``interp_at`` with the segment i = seg_index(ts, s) already known (``seg_hint``)."""
     n = ts.shape[0]
     if s <= ts[0]:
         return arr[0]
     if s >= ts[n - 1]:
         return arr[n - 1]
-    i = seg_index(ts, s)
     ds = ts[i + 1] - ts[i]
     if ds <= 0.0:
         return arr[i]
     return arr[i] + (arr[i + 1] - arr[i]) * (s - ts[i]) / ds
 
 
-@njit(cache=True)
-def interp_slope_at(ts, arr, s):
+@njit(cache=True, _nrt=False, error_model="numpy")
+def interp_slope_at(ts, arr, s, i):
     """Value (as ``interp_at``) and derivative d(arr)/ds (0 beyond the ends) of the piecewise-linear
-    per-vertex quantity at s, with one segment search."""
+    per-vertex quantity at s, in the segment i = seg_index(ts, s)."""
     n = ts.shape[0]
     if s <= ts[0]:
         return arr[0], 0.0
     if s >= ts[n - 1]:
         return arr[n - 1], 0.0
-    i = seg_index(ts, s)
     ds = ts[i + 1] - ts[i]
     if ds <= 0.0:
         return arr[i], 0.0
@@ -267,7 +315,7 @@ def interp_slope_at(ts, arr, s):
 
 
 # ============================================================== covariance hygiene
-@njit(cache=True)
+@njit(cache=True, _nrt=False, error_model="numpy")
 def _cholesky_ok(P):
     """True when the symmetric P is numerically positive definite (a plain Cholesky succeeds).
 
@@ -295,7 +343,7 @@ def _cholesky_ok(P):
     return ok
 
 
-@njit(cache=True)
+@njit(cache=True, _nrt=False, error_model="numpy")
 def _symmetrise_floor(P, cfg):
     """P = (P + P')/2 and a floor on the diagonal; True when the floor was hit (or a NaN replaced)."""
     n = P.shape[0]
@@ -312,7 +360,19 @@ def _symmetrise_floor(P, cfg):
     return repaired
 
 
-@njit(cache=True)
+@njit(cache=True, _nrt=False, error_model="numpy")
+def _floor_diag(P, cfg):
+    """The diagonal floor of ``_symmetrise_floor`` alone (for a P symmetric by construction)."""
+    pmin = cfg[K_P_MIN_VAR]
+    repaired = False
+    for i in range(P.shape[0]):
+        if not (P[i, i] >= pmin):  # also catches NaN
+            P[i, i] = pmin
+            repaired = True
+    return repaired
+
+
+@njit(cache=True, _nrt=False, error_model="numpy")
 def condition_cov(P, cfg, cnt):
     """Keep P symmetric positive definite: P = (P + P')/2, floor the diagonal, and if a Cholesky
     factorisation still fails drop the correlations (P = diag(P)). Repairs are counted."""
@@ -329,11 +389,15 @@ def condition_cov(P, cfg, cnt):
 
 
 # ============================================================== prediction
-@njit(cache=True)
+@njit(cache=True, _nrt=False, error_model="numpy")
 def _predict_step(x, P, aux, cfg, ts, tg, h, imu_ok):
-    """One prediction step of length h [s] with the held IMU specific force (zero-order hold)."""
+    """One prediction step of length h [s] with the held IMU specific force (zero-order hold).
+
+    The mean moves now; the covariance step is folded into the pending block (``sync_block`` applies
+    it): F_B <- F_h F_B and Q_B <- F_h Q_B F_h' + Q_h, which is exactly P <- F_h P F_h' + Q_h step by
+    step, since F_h only couples s and v to v, b_a, m_y and s_f, and Q_h is block diagonal."""
     g = cfg[K_GRAVITY]
-    grade = interp_at(ts, tg, x[S])
+    grade = interp_seg(ts, tg, x[S], seg_hint(ts, x[S], aux))
     sin_th = grade / math.sqrt(1.0 + grade * grade)  # grade = tan(theta)
     d = aux[A_DIR]
     fx = aux[A_FX]
@@ -342,53 +406,120 @@ def _predict_step(x, P, aux, cfg, ts, tg, h, imu_ok):
         # dv/dt = d (f_x - b_a - m_y f_y - s_f f_x) - g sin(theta)
         a = d * (fx - x[BA] - x[MY] * fy - x[SF] * fx) - g * sin_th
         q = cfg[K_Q_ACC]
+        fsb, fvb = -0.5 * d * h * h, -d * h
     else:
         a = 0.0  # no IMU: constant-velocity model with a wider acceleration noise
         q = cfg[K_Q_NO_IMU]
-    tau = cfg[K_GM_TAU]
-    phi = math.exp(-h / tau)  # Gauss-Markov transition exp(-h/tau)
-    # x = f(x): s += v h + a h^2 / 2 ; v += a h ; e_gnss *= phi
+        fsb, fvb = 0.0, 0.0
+    # x = f(x): s += v h + a h^2 / 2 ; v += a h (the GNSS error's decay e *= exp(-H/tau) at the sync)
     x[S] += x[V] * h + 0.5 * a * h * h
     x[V] += a * h
-    x[GE] *= phi
+    # F_h = df/dx = I except F[S,V] = h, F[S,BA] = -d h^2/2, F[V,BA] = -d h, F[S,MY] = -d h^2 f_y/2,
+    # F[V,MY] = -d h f_y, F[S,SF] = -d h^2 f_x/2, F[V,SF] = -d h f_x (F[GE,GE] = F[GN,GN] at the sync)
+    # F_B <- F_h F_B: rows S and V of the columns BA, MY, SF (row S first: it reads row V before)
+    aux[A_PB_SB] += h * aux[A_PB_VB] + fsb
+    aux[A_PB_VB] += fvb
+    aux[A_PB_SM] += h * aux[A_PB_VM] + fsb * fy
+    aux[A_PB_VM] += fvb * fy
+    aux[A_PB_SF] += h * aux[A_PB_VF] + fsb * fx
+    aux[A_PB_VF] += fvb * fx
+    aux[A_PB_H] += h  # F_B[S, V]
+    # Q_B <- F_h Q_B F_h' + Q_h on the (s, v, b_a) block, F_h = [[1, h, fsb], [0, 1, fvb], [0, 0, 1]]
+    qss, qsv, qsb = aux[A_QB_SS], aux[A_QB_SV], aux[A_QB_SB]
+    qvv, qvb, qbb = aux[A_QB_VV], aux[A_QB_VB], aux[A_QB_BB]
+    rs_s = qss + h * qsv + fsb * qsb  # (F_h Q_B) row s
+    rs_v = qsv + h * qvv + fsb * qvb
+    rs_b = qsb + h * qvb + fsb * qbb
+    rv_v = qvv + fvb * qvb  # (F_h Q_B) row v
+    rv_b = qvb + fvb * qbb
+    aux[A_QB_SS] = rs_s + h * rs_v + fsb * rs_b + q * h * h * h / 3.0  # Q_h: white acceleration, PSD q
+    aux[A_QB_SV] = rs_v + fvb * rs_b + q * h * h / 2.0
+    aux[A_QB_SB] = rs_b
+    aux[A_QB_VV] = rv_v + fvb * rv_b + q * h
+    aux[A_QB_VB] = rv_b
+    aux[A_QB_BB] = qbb + cfg[K_Q_BA] * h  # bias random walk
+
+
+@njit(cache=True, _nrt=False, error_model="numpy")
+def sync_block(x, P, aux, cfg, cnt):
+    """Bring P (and the GNSS error's mean) up to the state time: P = F_B P F_B' + Q_B for the pending
+    block of prediction steps, then empty the block. Every reader of P calls this first."""
+    hb = aux[A_PB_H]
+    if hb == 0.0:
+        return
+    phi = math.exp(-hb / cfg[K_GM_TAU])  # Gauss-Markov transition exp(-H/tau)
+    x[GE] *= phi  # e_gnss *= exp(-H/tau)
     x[GN] *= phi
-    # F = df/dx = I except F[S,V] = h, F[S,BA] = -d h^2/2, F[V,BA] = -d h, F[S,MY] = -d h^2 f_y/2,
-    # F[V,MY] = -d h f_y, F[S,SF] = -d h^2 f_x/2, F[V,SF] = -d h f_x, F[GE,GE] = F[GN,GN] = phi.
-    # P = F P F' + Q, with F's sparsity written out (rows, then columns)
-    if imu_ok:
-        fsb, fvb = -0.5 * d * h * h, -d * h
-    else:
-        fsb, fvb = 0.0, 0.0
-    fsm, fvm = fsb * fy, fvb * fy
-    fss, fvs = fsb * fx, fvb * fx
-    for j in range(NX):  # A = F P (rows S, V, GE, GN change)
+    fsb, fvb = aux[A_PB_SB], aux[A_PB_VB]
+    fsm, fvm = aux[A_PB_SM], aux[A_PB_VM]
+    fss, fvs = aux[A_PB_SF], aux[A_PB_VF]
+    # P = F_B P F_B' + Q_B, with F_B's sparsity written out (rows, then columns)
+    for j in range(NX):  # A = F_B P (rows S, V, GE, GN change)
         ps, pv = P[S, j], P[V, j]
-        P[S, j] = ps + h * pv + fsb * P[BA, j] + fsm * P[MY, j] + fss * P[SF, j]
+        P[S, j] = ps + hb * pv + fsb * P[BA, j] + fsm * P[MY, j] + fss * P[SF, j]
         P[V, j] = pv + fvb * P[BA, j] + fvm * P[MY, j] + fvs * P[SF, j]
         P[GE, j] *= phi
         P[GN, j] *= phi
-    for i in range(NX):  # P = A F' (columns S, V, GE, GN change)
+    for i in range(NX):  # P = A F_B' (columns S, V, GE, GN change)
         a_s, a_v = P[i, S], P[i, V]
-        P[i, S] = a_s + h * a_v + fsb * P[i, BA] + fsm * P[i, MY] + fss * P[i, SF]
+        P[i, S] = a_s + hb * a_v + fsb * P[i, BA] + fsm * P[i, MY] + fss * P[i, SF]
         P[i, V] = a_v + fvb * P[i, BA] + fvm * P[i, MY] + fvs * P[i, SF]
         P[i, GE] *= phi
         P[i, GN] *= phi
-    P[S, S] += q * h * h * h / 3.0  # Q of white acceleration noise, PSD q [m^2/s^3]
-    P[S, V] += q * h * h / 2.0
-    P[V, S] += q * h * h / 2.0
-    P[V, V] += q * h
-    P[BA, BA] += cfg[K_Q_BA] * h  # bias random walk
-    P[KO, KO] += cfg[K_Q_KO] * h  # odometer scale random walk
+    P[S, S] += aux[A_QB_SS]  # Q_B: the accumulated (s, v, b_a) block ..
+    P[S, V] += aux[A_QB_SV]
+    P[V, S] += aux[A_QB_SV]
+    P[S, BA] += aux[A_QB_SB]
+    P[BA, S] += aux[A_QB_SB]
+    P[V, V] += aux[A_QB_VV]
+    P[V, BA] += aux[A_QB_VB]
+    P[BA, V] += aux[A_QB_VB]
+    P[BA, BA] += aux[A_QB_BB]
+    P[KO, KO] += cfg[K_Q_KO] * hb  # .. and the uncoupled random walks: odometer scale
     gm = cfg[K_GM_SIGMA]
     P[GE, GE] += gm * gm * (1.0 - phi * phi)  # Gauss-Markov driving noise
     P[GN, GN] += gm * gm * (1.0 - phi * phi)
-    P[BG, BG] += cfg[K_Q_BG] * h
-    P[SG, SG] += cfg[K_Q_SG] * h  # gyro scale random walk
+    P[BG, BG] += cfg[K_Q_BG] * hb  # gyro bias
+    P[SG, SG] += cfg[K_Q_SG] * hb  # gyro scale
+    block_clear(aux)
+    if _symmetrise_floor(P, cfg):
+        cnt[C_COV_REPAIR] += 1
 
 
-@njit(cache=True)
+@njit(cache=True, _nrt=False, error_model="numpy")
+def block_clear(aux):
+    """Forget the pending block (after a sync, or when P is replaced by a snapshot)."""
+    for k in range(A_PB_H, A_QB_BB + 1):
+        aux[k] = 0.0
+
+
+@njit(cache=True, _nrt=False, error_model="numpy")
+def pending_var_sv(P, aux):
+    """Variances of s and v of the synced P, without changing anything: (F_B P F_B' + Q_B)[S,S] and [V,V]."""
+    hb = aux[A_PB_H]
+    if hb == 0.0:
+        return P[S, S], P[V, V]
+    # f = row S of F_B on (S, V, BA, MY, SF) = (1, H, sb, sm, sf); g = row V = (0, 1, vb, vm, vf)
+    sb, sm_, sf = aux[A_PB_SB], aux[A_PB_SM], aux[A_PB_SF]
+    vb, vm, vf = aux[A_PB_VB], aux[A_PB_VM], aux[A_PB_VF]
+    ps = P[S, S] + hb * P[V, S] + sb * P[BA, S] + sm_ * P[MY, S] + sf * P[SF, S]  # (f P)_S
+    pv = P[S, V] + hb * P[V, V] + sb * P[BA, V] + sm_ * P[MY, V] + sf * P[SF, V]  # (f P)_V
+    pb = P[S, BA] + hb * P[V, BA] + sb * P[BA, BA] + sm_ * P[MY, BA] + sf * P[SF, BA]
+    pm = P[S, MY] + hb * P[V, MY] + sb * P[BA, MY] + sm_ * P[MY, MY] + sf * P[SF, MY]
+    pf = P[S, SF] + hb * P[V, SF] + sb * P[BA, SF] + sm_ * P[MY, SF] + sf * P[SF, SF]
+    pss = ps + hb * pv + sb * pb + sm_ * pm + sf * pf + aux[A_QB_SS]  # f P f' + Q_B[S,S]
+    gv = P[V, V] + vb * P[BA, V] + vm * P[MY, V] + vf * P[SF, V]  # (g P)_V
+    gb = P[V, BA] + vb * P[BA, BA] + vm * P[MY, BA] + vf * P[SF, BA]
+    gm = P[V, MY] + vb * P[BA, MY] + vm * P[MY, MY] + vf * P[SF, MY]
+    gf = P[V, SF] + vb * P[BA, SF] + vm * P[MY, SF] + vf * P[SF, SF]
+    pvv = gv + vb * gb + vm * gm + vf * gf + aux[A_QB_VV]  # g P g' + Q_B[V,V]
+    return pss, pvv
+
+
+@njit(cache=True, _nrt=False, error_model="numpy")
 def predict_to(x, P, aux, cnt, cfg, ts, tg, t):
-    """Propagate the state from aux[A_T_STATE] to t in steps of at most cfg[K_MAX_DT]."""
+    """Propagate the state from aux[A_T_STATE] to t in steps of at most cfg[K_MAX_DT] (the covariance
+    into the pending block)."""
     dt_total = t - aux[A_T_STATE]
     if dt_total <= 0.0:
         return
@@ -402,19 +533,18 @@ def predict_to(x, P, aux, cnt, cfg, ts, tg, t):
     for _ in range(n):
         _predict_step(x, P, aux, cfg, ts, tg, h, imu_ok)
     aux[A_T_STATE] = t
-    # F P F' + Q keeps a positive definite P positive definite: after a short prediction the
-    # symmetrisation and the diagonal floor suffice (every update runs the full Cholesky check);
-    # after a long one (a gap of more than 10 steps) P is checked here as well
+    # F P F' + Q keeps a positive definite P positive definite: every update runs the Cholesky check
+    # (the gyro's the diagonal floor); after a long prediction (a gap of more than 10 steps) P is
+    # brought up to date and checked here
     if n > 10:
+        sync_block(x, P, aux, cfg, cnt)
         condition_cov(P, cfg, cnt)
-    elif _symmetrise_floor(P, cfg):
-        cnt[C_COV_REPAIR] += 1
 
 
 # ============================================================== updates (allocation-free)
 # A scalar measurement's Jacobian h has at most five nonzeros: (i0, h0) .. (i4, h4); an index
 # < 0 is unused. P h' and the gain K go to the scratch slots of aux (A_WK_PHT, A_WK_K).
-@njit(cache=True)
+@njit(cache=True, _nrt=False, error_model="numpy")
 def innovation1(P, aux, i0, h0, i1, h1, i2, h2, i3, h3, i4, h4, r, y):
     """Scalar innovation: P h' (into aux scratch), S = h P h' + r, NIS = y^2 / S. Returns (S, NIS)."""
     for i in range(NX):
@@ -444,10 +574,15 @@ def innovation1(P, aux, i0, h0, i1, h1, i2, h2, i3, h3, i4, h4, r, y):
     return sm, y * y / sm  # NIS = y' S^-1 y
 
 
-@njit(cache=True)
+@njit(cache=True, _nrt=False, error_model="numpy")
 def apply_update1(x, P, aux, sm, y, cfg, cnt):
     """Scalar update after ``innovation1``: K = P h' / S ; x = x + K y ; Joseph form
     P = (I - K h) P (I - K h)' + K r K', expanded for the rank-one h as P - K (P h')' - (P h') K' + S K K'.
+
+    The expansion is symmetric: the upper triangle is computed and mirrored, then the diagonal floored.
+    The Joseph form with S > 0 keeps a positive definite P positive definite; the full check
+    (``condition_cov``, with its Cholesky test) runs after every GNSS update, before every rewind
+    snapshot (each second while the odometer is clean) and after long predictions.
 
     The update is abandoned (state unchanged) if it could produce a non-finite value: every factor of
     the correction is checked finite and below 1e100 in magnitude (so no product can overflow), which
@@ -460,17 +595,31 @@ def apply_update1(x, P, aux, sm, y, cfg, cnt):
         aux[A_WK_K + i] = k
         if not (abs(p) <= BIG and abs(k) <= BIG and abs(k * y) <= BIG):
             return False  # also catches NaN
+    _gyro_window_shift(aux, aux[A_WK_K + S] * y, aux[A_WK_K + V] * y, aux[A_WK_K + BG] * y,
+                       aux[A_WK_K + SG] * y, aux[A_WK_K + MX] * y)
     for i in range(NX):
         x[i] += aux[A_WK_K + i] * y  # x = x + K y
         ki, pi = aux[A_WK_K + i], aux[A_WK_PHT + i]
-        for j in range(NX):
+        for j in range(i, NX):
             kj, pj = aux[A_WK_K + j], aux[A_WK_PHT + j]
-            P[i, j] = P[i, j] - (ki * pj + pi * kj) + sm * (ki * kj)  # Joseph form, rank one
-    condition_cov(P, cfg, cnt)
+            v = P[i, j] - (ki * pj + pi * kj) + sm * (ki * kj)  # Joseph form, rank one
+            P[i, j] = v
+            P[j, i] = v
+    if _floor_diag(P, cfg):
+        cnt[C_COV_REPAIR] += 1
     return True
 
 
-@njit(cache=True)
+@njit(cache=True, _nrt=False, error_model="numpy")
+def _gyro_window_shift(aux, d_s, d_v, d_bg, d_sg, d_mx):
+    """Keep the gyro window's residual sum relative to the current state after an update moved it by
+    dx: each residual y_i = gz_i - h_i(x) changes by -h_i dx (first order), the sum by -(sum h_i) dx."""
+    if aux[A_GY_N] > 0.0:
+        aux[A_GY_Y] -= (aux[A_GY_HS] * d_s + aux[A_GY_HV] * d_v + aux[A_GY_N] * d_bg
+                        + aux[A_GY_HSG] * d_sg + aux[A_GY_HMX] * d_mx)
+
+
+@njit(cache=True, _nrt=False, error_model="numpy")
 def innovation2(P, aux, H, R, y):
     """Two-row innovation (GNSS): P H' (into aux scratch), S = H P H' + R, S^-1, NIS = y' S^-1 y and
     log det S. Returns (s00, s01, s11, si00, si01, si11, nis, logdet)."""
@@ -498,7 +647,7 @@ def innovation2(P, aux, H, R, y):
     return s00, s01, s11, si00, si01, si11, nis, logdet
 
 
-@njit(cache=True)
+@njit(cache=True, _nrt=False, error_model="numpy")
 def apply_update2(x, P, aux, y, s00, s01, s11, si00, si01, si11, cfg, cnt):
     """Two-row update after ``innovation2``: K = P H' S^-1 ; x = x + K y ; Joseph form
     P = (I - K H) P (I - K H)' + K R K', expanded as P - K (P H')' - (P H') K' + K S K'.
@@ -528,6 +677,11 @@ def apply_update2(x, P, aux, y, s00, s01, s11, si00, si01, si11, cfg, cnt):
                         return False
                 else:
                     P[i, j] = v  # Joseph form: P - K (PH')' - (PH') K' + K S K'
+    _gyro_window_shift(aux, aux[A_WK_K + S] * y[0] + aux[A_WK_K + NX + S] * y[1],
+                       aux[A_WK_K + V] * y[0] + aux[A_WK_K + NX + V] * y[1],
+                       aux[A_WK_K + BG] * y[0] + aux[A_WK_K + NX + BG] * y[1],
+                       aux[A_WK_K + SG] * y[0] + aux[A_WK_K + NX + SG] * y[1],
+                       aux[A_WK_K + MX] * y[0] + aux[A_WK_K + NX + MX] * y[1])
     for i in range(NX):
         x[i] += aux[A_WK_K + i] * y[0] + aux[A_WK_K + NX + i] * y[1]  # x = x + K y
     condition_cov(P, cfg, cnt)
@@ -535,7 +689,7 @@ def apply_update2(x, P, aux, y, s00, s01, s11, si00, si01, si11, cfg, cnt):
 
 
 # ============================================================== timeouts and status
-@njit(cache=True)
+@njit(cache=True, _nrt=False, error_model="numpy")
 def check_timeouts(aux, cnt, cfg, t):
     """Count each sensor's transition into time-out at time t."""
     flags = (
@@ -551,7 +705,7 @@ def check_timeouts(aux, cnt, cfg, t):
         aux[a_flag] = 1.0 if out else 0.0
 
 
-@njit(cache=True)
+@njit(cache=True, _nrt=False, error_model="numpy")
 def status_of(x, P, aux, cfg, t):
     """(status, reason bits, sigma_s) at time t >= state time. Status codes as sfa.layout.FilterStatus."""
     if aux[A_INIT] == 0.0:
@@ -582,7 +736,7 @@ def status_of(x, P, aux, cfg, t):
         bits |= R_IMU_STUCK
     if t - aux[A_IMU_FAULT_T] <= cfg[K_IMU_FAULT_HOLD]:
         bits |= R_IMU_FAULT
-    var = P[S, S]
+    var, _ = pending_var_sv(P, aux)
     sigma = math.sqrt(var) if var > 0.0 else 0.0
     if sigma > cfg[K_LOST_SIGMA]:
         bits |= R_SIGMA_LOST
@@ -596,7 +750,7 @@ def status_of(x, P, aux, cfg, t):
 
 
 # ============================================================== initialisation (GROUND TRUTH)
-@njit(cache=True)
+@njit(cache=True, _nrt=False, error_model="numpy")
 def step_init(x, P, aux, cnt, mem, cfg, ts, tg, t, s, v, direction):
     """(Re)initialise arc length and speed at time t. v is the speed in the train's forward direction
     (GROUND TRUTH's vx), direction +1 when forward is increasing arc length, -1 otherwise.
@@ -607,7 +761,10 @@ def step_init(x, P, aux, cnt, mem, cfg, ts, tg, t, s, v, direction):
     if not (math.isfinite(t) and math.isfinite(s) and math.isfinite(v)) or abs(v) > 1000.0 \
             or abs(direction) != 1.0:
         return O_INVALID
-    if aux[A_INIT] == 0.0:
+    if aux[A_INIT] != 0.0:
+        sync_block(x, P, aux, cfg, cnt)  # the kept error states' covariance, up to the old state time
+    else:
+        block_clear(aux)
         x[:] = 0.0
         P[:, :] = 0.0
         P[BA, BA] = cfg[K_INIT_SIGMA_BA] ** 2
@@ -656,6 +813,7 @@ def step_init(x, P, aux, cnt, mem, cfg, ts, tg, t, s, v, direction):
     aux[A_IMU_FAULT_T] = -math.inf
     aux[A_SLIP_DS] = 0.0
     aux[A_T_ODO_SEEN] = t
+    aux[A_GY_N] = 0.0
     mem_reset(mem)
     cnt[C_INIT] += 1
     condition_cov(P, cfg, cnt)
@@ -663,16 +821,17 @@ def step_init(x, P, aux, cnt, mem, cfg, ts, tg, t, s, v, direction):
 
 
 # ============================================================== rewind memory (slip onset)
-@njit(cache=True)
+@njit(cache=True, _nrt=False, error_model="numpy")
 def mem_reset(mem):
     """Forget snapshots and IMU history (at (re)initialisation)."""
     mem[:] = 0.0
     mem[MEM_T_ROT] = -math.inf
 
 
-@njit(cache=True)
+@njit(cache=True, _nrt=False, error_model="numpy")
 def _mem_save(x, P, aux, mem, off):
-    mem[off:off + NX] = x
+    for i in range(NX):
+        mem[off + i] = x[i]
     k = off + NX
     for i in range(NX):
         for j in range(NX):
@@ -684,7 +843,7 @@ def _mem_save(x, P, aux, mem, off):
     mem[k + 3] = 1.0
 
 
-@njit(cache=True)
+@njit(cache=True, _nrt=False, error_model="numpy")
 def _mem_push_imu(mem, t, fx, fy):
     n = int(mem[MEM_HN])
     head = int(mem[MEM_HH])
@@ -699,17 +858,20 @@ def _mem_push_imu(mem, t, fx, fy):
     mem[MEM_H0 + 3 * i + 2] = fy
 
 
-@njit(cache=True)
-def mem_rotate(x, P, aux, mem, cfg, t):
-    """Every snapshot period (while the odometer is clean): older <- newer <- current state."""
+@njit(cache=True, _nrt=False, error_model="numpy")
+def mem_rotate(x, P, aux, cnt, mem, cfg, t):
+    """Every snapshot period (while the odometer is clean): older <- newer <- current state. P gets
+    the full check (``condition_cov``, with its Cholesky test) first: a snapshot holds a checked P."""
     if cfg[K_SNAP_PERIOD] <= 0.0 or t - mem[MEM_T_ROT] < cfg[K_SNAP_PERIOD]:
         return
-    mem[MEM_A:MEM_A + SNAP] = mem[MEM_B:MEM_B + SNAP]
-    _mem_save(x, P, aux, mem, MEM_B)
+    condition_cov(P, cfg, cnt)
+    for k in range(SNAP):  # element by element: the kernels run without numba's allocator (_nrt=False)
+        mem[MEM_A + k] = mem[MEM_B + k]
+    _mem_save(x, P, aux, mem, MEM_B)  # P is synced: called right after an odometer update
     mem[MEM_T_ROT] = t
 
 
-@njit(cache=True)
+@njit(cache=True, _nrt=False, error_model="numpy")
 def rewind_imu_only(x, P, aux, cnt, cfg, ts, tg, mem, ba_var_add):
     """Restore the older snapshot, add ``ba_var_add`` [m^2/s^4] to the accelerometer bias variance
     there, and re-propagate to the current time with the IMU alone.
@@ -727,13 +889,16 @@ def rewind_imu_only(x, P, aux, cnt, cfg, ts, tg, mem, ba_var_add):
     t_now = aux[A_T_STATE]
     fx_now = aux[A_FX]
     fy_now = aux[A_FY]
-    x[:] = mem[MEM_A:MEM_A + NX]
+    for i in range(NX):
+        x[i] = mem[MEM_A + i]
     q = MEM_A + NX
     for i in range(NX):
         for j in range(NX):
             P[i, j] = mem[q]
             q += 1
     aux[A_T_STATE] = t_snap
+    block_clear(aux)  # the snapshot's P is at its own time (saved synced); the re-propagation starts a block
+    aux[A_GY_N] = 0.0  # the window's residuals belong to the abandoned trajectory
     aux[A_FX] = mem[k + 1]
     aux[A_FY] = mem[k + 2]
     P[BA, BA] += ba_var_add
@@ -756,7 +921,7 @@ def rewind_imu_only(x, P, aux, cnt, cfg, ts, tg, mem, ba_var_add):
 
 
 # ============================================================== IMU
-@njit(cache=True)
+@njit(cache=True, _nrt=False, error_model="numpy")
 def roll_cos(f_lat_mps2, f_up_mps2, fy, fz):
     """cos(phi) of the IMU's roll phi about the track axis (cant plus mounting), from the accelerometer.
 
@@ -776,7 +941,7 @@ def roll_cos(f_lat_mps2, f_up_mps2, fy, fz):
     return math.cos(phi)
 
 
-@njit(cache=True)
+@njit(cache=True, _nrt=False, error_model="numpy")
 def step_imu(x, P, aux, cnt, mem, cfg, ts, tg, tk, t, fx, fy, fz, wx, wy, wz):
     """IMU sample at t: propagate with the previously held force, then hold this sample's force.
 
@@ -830,28 +995,63 @@ def step_imu(x, P, aux, cnt, mem, cfg, ts, tg, tk, t, fx, fy, fz, wx, wy, wz):
     aux[A_LAST_NIS_GYRO] = -1.0
     aux[A_GYRO_OK] = 0.0
     if cfg[K_USE_GYRO] != 0.0 and abs(x[V]) >= cfg[K_GYRO_MIN_SPEED]:
-        k, dk_ds = interp_slope_at(ts, tk, x[S])
+        if aux[A_GY_N] > 0.0 and t - aux[A_GY_T0] > cfg[K_GYRO_AVG_MAX_S]:
+            # the window spans too long: apply what it holds (before this sample's residual, which
+            # must be taken at the state that update leaves)
+            gyro_window_update(x, P, aux, cnt, cfg)
+        k, dk_ds = interp_slope_at(ts, tk, x[S], seg_hint(ts, x[S], aux))
         c = 1.0  # cos(roll): the cant turns the gyro's z axis away from the vertical
         if cfg[K_GYRO_TILT] != 0.0:
             c = roll_cos(x[V] * x[V] * aux[A_DIR] * k, -cfg[K_GRAVITY], fy, fz)
         g1 = c * (1.0 + x[SG])
-        h_s = g1 * x[V] * dk_ds  # d/ds of c (1 + s_g) v k(s)
-        r = cfg[K_GYRO_SIGMA] ** 2 + (x[V] * cfg[K_CURV_SIGMA]) ** 2  # sensor + v * curvature error
         y = wz - (g1 * x[V] * k + x[BG] + x[MX] * wx)  # y = gz - (c (1 + s_g) v k(s) + b_g + m_x gx)
-        # h = [c (1 + s_g) v dk/ds, c (1 + s_g) k, .., 1 (b_g), .., c v k (s_g), gx (m_x)]
-        sm, nis = innovation1(P, aux, S, h_s, V, g1 * k, BG, 1.0, SG, c * x[V] * k, MX, wx, r, y)
-        aux[A_LAST_NIS_GYRO] = nis
-        if nis <= cfg[K_GATE_GYRO]:
-            apply_update1(x, P, aux, sm, y, cfg, cnt)
-            cnt[C_GYRO_OK] += 1
-            aux[A_GYRO_OK] = 1.0
-        else:
-            cnt[C_GYRO_GATED] += 1
+        if aux[A_GY_N] == 0.0:
+            aux[A_GY_T0] = t
+            aux[A_GY_Y] = 0.0
+            aux[A_GY_HS] = 0.0
+            aux[A_GY_HV] = 0.0
+            aux[A_GY_HSG] = 0.0
+            aux[A_GY_HMX] = 0.0
+            aux[A_GY_RC] = 0.0
+        # h = [c (1 + s_g) v dk/ds, c (1 + s_g) k, .., 1 (b_g), .., c v k (s_g), gx (m_x)], summed
+        aux[A_GY_N] += 1.0
+        aux[A_GY_TL] = t
+        aux[A_GY_Y] += y
+        aux[A_GY_HS] += g1 * x[V] * dk_ds
+        aux[A_GY_HV] += g1 * k
+        aux[A_GY_HSG] += c * x[V] * k
+        aux[A_GY_HMX] += wx
+        aux[A_GY_RC] += (x[V] * cfg[K_CURV_SIGMA]) ** 2  # v * curvature error: does not average out
+        if aux[A_GY_N] >= cfg[K_GYRO_AVG_N]:
+            gyro_window_update(x, P, aux, cnt, cfg)
+    else:
+        aux[A_GY_N] = 0.0  # a window holds consecutive samples that all qualify
     return O_ACCEPTED
 
 
+@njit(cache=True, _nrt=False, error_model="numpy")
+def gyro_window_update(x, P, aux, cnt, cfg):
+    """One gyro update from the window's n samples: the mean residual against the mean Jacobian,
+    R = sigma_g^2 / n (white sensor noise averages) + mean (v sigma_k)^2 (the curvature-model error does
+    not). Empties the window; sets the gyro NIS and outcome slots."""
+    n = aux[A_GY_N]
+    aux[A_GY_N] = 0.0  # emptied before the update: its own correction must not shift the window
+    sync_block(x, P, aux, cfg, cnt)
+    r = cfg[K_GYRO_SIGMA] ** 2 / n + aux[A_GY_RC] / n
+    y = aux[A_GY_Y] / n  # mean residual
+    sm, nis = innovation1(P, aux, S, aux[A_GY_HS] / n, V, aux[A_GY_HV] / n, BG, 1.0, SG, aux[A_GY_HSG] / n,
+                          MX, aux[A_GY_HMX] / n, r, y)
+    aux[A_LAST_NIS_GYRO] = nis
+    if nis <= cfg[K_GATE_GYRO]:
+        if apply_update1(x, P, aux, sm, y, cfg, cnt):
+            cnt[C_GYRO_OK] += 1
+            aux[A_GYRO_OK] = 1.0
+    else:
+        cnt[C_GYRO_GATED] += 1
+
+
 # ============================================================== odometer (+ slip detection, ZUPT)
-@njit(cache=True)
+@njit(cache=True, _nrt=False, error_model="numpy")
 def step_odo(x, P, aux, cnt, mem, cfg, ts, tg, t, speed, sigma):
     """Odometer speed z = d v (1 + k_o) + noise with the sample's own sigma, slip/slide detection
     against the IMU-propagated speed, and a zero-velocity update at detected standstill."""
@@ -866,6 +1066,7 @@ def step_odo(x, P, aux, cnt, mem, cfg, ts, tg, t, speed, sigma):
         cnt[C_ODO_LATE] += 1
         return O_LATE
     predict_to(x, P, aux, cnt, cfg, ts, tg, t)
+    sync_block(x, P, aux, cfg, cnt)
     check_timeouts(aux, cnt, cfg, t)
     sig = max(sigma, cfg[K_ODO_SIGMA_MIN])
     d = aux[A_DIR]
@@ -930,9 +1131,10 @@ def step_odo(x, P, aux, cnt, mem, cfg, ts, tg, t, speed, sigma):
             aux[A_T_ODO] = t
             outcome = O_ACCEPTED
             if aux[A_SLIP] == 0.0 and aux[A_SLIP_BAD] == 0.0 and nis <= cfg[K_GATE_ODO] / 4.0:
-                mem_rotate(x, P, aux, mem, cfg, t)
+                mem_rotate(x, P, aux, cnt, mem, cfg, t)
     if still:
         # zero-velocity pseudo-measurement: z = 0 = v + noise(zupt_sigma)
+        sync_block(x, P, aux, cfg, cnt)  # (a rewind above re-propagated P into a new block)
         y = -x[V]
         r = cfg[K_ZUPT_SIGMA] ** 2
         sm, nis = innovation1(P, aux, V, 1.0, -1, 0.0, -1, 0.0, -1, 0.0, -1, 0.0, r, y)  # h = [0, 1, 0, ..]
@@ -983,6 +1185,7 @@ def step_gps(x, P, aux, cnt, cfg, ts, te, tn, tg, t, east, north, sigma_h, fix_q
     if dl <= 0.0:
         predict_to(x, P, aux, cnt, cfg, ts, tg, t)
         dl = 0.0
+    sync_block(x, P, aux, cfg, cnt)
     if t - aux[A_T_GPS] > cfg[K_GPS_TIMEOUT] and aux[A_GPS_REJ] == 0.0:
         # after an outage the receiver computes a new solution: its correlated error restarts from the
         # stationary distribution, uncorrelated with the rest of the state

@@ -74,9 +74,38 @@ A_IMU_SAME = 39  #: consecutive IMU samples bit-identical to the previous one
 A_SLIP_DS = 40  #: arc length the odometer travelled beyond the estimate during the current slip [m]
 A_T_ODO_SEEN = 41  #: time of the last valid odometer sample, used or not [s]
 A_IMU_FAULT_T = 42  #: time the accelerometer was last declared faulty (a slip that never ended) [s]
+#: The gyro window: the residuals and Jacobians of consecutive IMU samples, averaged into one gyro
+#: update (docs/filter.md, "Gyro update"). The residual sum is kept relative to the current state.
+A_GY_N = 43  #: samples in the window
+A_GY_T0 = 44  #: time of the window's first sample [s]
+A_GY_TL = 45  #: time of the window's last sample [s]
+A_GY_Y = 46  #: sum of the residuals gz - h(x) [rad/s]
+A_GY_HS = 47  #: sum of dh/ds [rad/s/m]
+A_GY_HV = 48  #: sum of dh/dv [1/m]
+A_GY_HSG = 49  #: sum of dh/ds_g [rad/s]
+A_GY_HMX = 50  #: sum of dh/dm_x (the roll rates) [rad/s]
+A_GY_RC = 51  #: sum of the curvature-model variances (v sigma_k)^2 [rad^2/s^2]
+A_SEG = 52  #: segment index of the last geometry lookup (a hint: every lookup checks it)
+#: The covariance prediction pending since P was last brought up to the state time (``cov_sync``):
+#: the mean is predicted at every step, P once per block of steps with the block's transition
+#: F_B = I + (these coefficients) and noise Q_B (docs/filter.md, "Prediction").
+A_PB_H = 53  #: length of the pending block [s] (0: P is current)
+A_PB_SB = 54  #: F_B[S, BA] [s^2]
+A_PB_VB = 55  #: F_B[V, BA] [s]
+A_PB_SM = 56  #: F_B[S, MY] [m]
+A_PB_VM = 57  #: F_B[V, MY] [m/s]
+A_PB_SF = 58  #: F_B[S, SF] [m]
+A_PB_VF = 59  #: F_B[V, SF] [m/s]
+#: the block's process noise in the (S, V, BA) block, accumulated step by step as Q_B = F_h Q_B F_h' + Q_h
+A_QB_SS = 60  #: [m^2]
+A_QB_SV = 61  #: [m^2/s]
+A_QB_SB = 62  #: [m * m/s^2]
+A_QB_VV = 63  #: [m^2/s^2]
+A_QB_VB = 64  #: [m/s * m/s^2]
+A_QB_BB = 65  #: [m^2/s^4]
 #: Scratch for the updates (no meaning between calls): P H' (two columns of NX) and the gain K (two
 #: columns of NX). Kept in aux so the compiled updates allocate nothing per measurement.
-A_WK_PHT = 43
+A_WK_PHT = 66
 A_WK_K = A_WK_PHT + 2 * NX
 NAUX = A_WK_K + 2 * NX
 
@@ -203,7 +232,9 @@ K_INIT_SIGMA_MX = 56  #: initial sigma of the yaw gyro's roll-rate coupling [rad
 K_IMU_STUCK_N = 57  #: bit-identical consecutive IMU samples that declare the IMU stuck (0: off) [samples]
 K_SLIP_BA_SIGMA = 58  #: accelerometer bias sigma added when a slip outlasts slip_max_s [m/s^2]
 K_IMU_FAULT_HOLD = 59  #: how long a declared accelerometer fault stays reported [s]
-NCFG = 60
+K_GYRO_AVG_N = 60  #: IMU samples averaged into one gyro update [samples]
+K_GYRO_AVG_MAX_S = 61  #: longest span of one gyro window [s]
+NCFG = 62
 
 # ---------------------------------------------------------------- measurement kinds and result codes
 M_IMU = 1

@@ -41,7 +41,22 @@ STOP_UNDONE = 2  #: measurement i was stepped, then undone (state as before it)
 STOP_AFTER = 3  #: measurement i was processed up to TrackFilter._spawn_branches, which the caller runs
 
 
-@njit(cache=False)  # reads sfa.layout slots: a disk cache would keep stale indices
+@njit(cache=False, _nrt=False)
+def _copy1(dst, src):
+    """dst[:] = src element by element (the compiled loop runs without numba's allocator, _nrt=False)."""
+    for i in range(dst.shape[0]):
+        dst[i] = src[i]
+
+
+@njit(cache=False, _nrt=False)
+def _copy2(dst, src):
+    """dst[:, :] = src element by element."""
+    for i in range(dst.shape[0]):
+        for j in range(dst.shape[1]):
+            dst[i, j] = src[i, j]
+
+
+@njit(cache=False, _nrt=False, error_model="numpy")  # reads sfa.layout slots: no disk cache (stale indices)
 def _prune(order, ns, X, AUX, length_m, window, prune_ratio, switch_ratio, max_hyps, keep, key):
     """TrackFilter._prune over the hypotheses ``order[:ns[0]]``, reported ``order[ns[1]]`` (finite scores)."""
     nh = ns[0]
@@ -114,7 +129,7 @@ def _prune(order, ns, X, AUX, length_m, window, prune_ratio, switch_ratio, max_h
     ns[0] = kept
 
 
-@njit(cache=False)  # reads sfa.layout slots: a disk cache would keep stale indices
+@njit(cache=False, _nrt=False, error_model="numpy")  # reads sfa.layout slots: no disk cache (stale indices)
 def _score(order, nh, AUX, slot, cap):
     """TrackFilter._score's update (before its prune); False when a score is no longer finite."""
     ok = True
@@ -127,8 +142,8 @@ def _score(order, nh, AUX, slot, cap):
     return ok
 
 
-@njit(cache=False)  # reads sfa.layout slots: a disk cache would keep stale indices
-def _spawn_reversals(order, ns, X, PP, AUX, CNT, MEM):
+@njit(cache=False, _nrt=False, error_model="numpy")  # reads sfa.layout slots: no disk cache (stale indices)
+def _spawn_reversals(order, ns, X, PP, AUX, CNT, MEM, cfg):
     """TrackFilter._spawn_reversals' additions (mirrored hypotheses); True when any was added."""
     nh = ns[0]
     cap = X.shape[0]
@@ -156,22 +171,29 @@ def _spawn_reversals(order, ns, X, PP, AUX, CNT, MEM):
             if not used:
                 free = c
                 break
-        X[free, :] = X[h, :]
-        PP[free, :, :] = PP[h, :, :]
-        AUX[free, :] = AUX[h, :]
-        CNT[free, :] = CNT[h, :]
+        K.sync_block(X[h], PP[h], AUX[h], cfg, CNT[h])  # as TrackFilter's _Hypothesis.mirrored
+        _copy1(X[free], X[h])
+        _copy2(PP[free], PP[h])
+        _copy1(AUX[free], AUX[h])
+        _copy1(CNT[free], CNT[h])
         MEM[free, :] = 0.0
         X[free, L.V] = -X[free, L.V]
         AUX[free, L.A_DIR] = -AUX[free, L.A_DIR]
-        PP[free, L.V, :] = -PP[free, L.V, :]
-        PP[free, :, L.V] = -PP[free, :, L.V]
+        AUX[free, L.A_GY_N] = 0.0  # as TrackFilter's _Hypothesis.mirrored
+        for q in range(L.NX):
+            PP[free, L.V, q] = -PP[free, L.V, q]
+        for q in range(L.NX):
+            PP[free, q, L.V] = -PP[free, q, L.V]
         order[total] = free
         total += 1
+    if total > nh:  # as TrackFilter._spawn_reversals: gyro windows aligned across the hypotheses
+        for q in range(total):
+            AUX[order[q], L.A_GY_N] = 0.0
     ns[0] = total
     return total > nh
 
 
-@njit(cache=False)
+@njit(cache=False, _nrt=False, error_model="numpy")  # reads sfa.layout slots: no disk cache
 def run_segment(
     kind,
     t,
@@ -209,6 +231,8 @@ def run_segment(
     out_f,
     out_i,
     stale,
+    work_i,
+    work_f,
 ):
     """Step measurements i0, i0 + 1, ... of (kind, t, vals) with the hypotheses ``order[:ns[0]]``
     (slots of X, PP, AUX, CNT, MEM), reported ``order[ns[1]]``; S* are snapshot arrays of the same shapes.
@@ -216,15 +240,16 @@ def run_segment(
     out_f (5, n): epoch [s], s [m], speed [m/s], sigma_s [m], nis (NaN for IMU); out_i (4, n): outcome,
     status, reason bits, 1 when the listener sends an output (one contiguous row per quantity).
     ``last``: the listener's last output (epoch, s), advanced; ``stale[0]``: estimates not sent as
-    stale, advanced.
+    stale, advanced. ``work_i`` (2, cap) int64 and ``work_f`` (cap,) are scratch (the loop is compiled
+    without numba's allocator and reference counting, ``_nrt=False``: it allocates nothing).
     Returns (i, why): DONE with i = n, STOP_BEFORE / STOP_UNDONE with i the first measurement not
     processed, STOP_AFTER with i the measurement whose branch spawning and output are the caller's.
     """
     n = kind.shape[0]
     nj = junc_s.shape[0]
-    keep = np.empty(X.shape[0], dtype=np.int64)
-    key = np.empty(X.shape[0])
-    s_order = np.empty(X.shape[0], dtype=np.int64)
+    keep = work_i[0]
+    key = work_f
+    s_order = work_i[1]
     for i in range(i0, n):
         k = kind[i]
         ti = t[i]
@@ -240,12 +265,12 @@ def run_segment(
             for j in range(nh):
                 h = order[j]
                 s_order[j] = h
-                SX[h, :] = X[h, :]
-                SP[h, :, :] = PP[h, :, :]
-                SA[h, :] = AUX[h, :]
-                SC[h, :] = CNT[h, :]
+                _copy1(SX[h], X[h])
+                _copy2(SP[h], PP[h])
+                _copy1(SA[h], AUX[h])
+                _copy1(SC[h], CNT[h])
                 if k == 2:  # step_gps does not take mem
-                    SM[h, :] = MEM[h, :]
+                    _copy1(SM[h], MEM[h])
         code = K.O_INVALID
         accepted = False
         for j in range(nh):
@@ -311,17 +336,17 @@ def run_segment(
             for j in range(nh):
                 h = s_order[j]
                 order[j] = h
-                X[h, :] = SX[h, :]
-                PP[h, :, :] = SP[h, :, :]
-                AUX[h, :] = SA[h, :]
-                CNT[h, :] = SC[h, :]
+                _copy1(X[h], SX[h])
+                _copy2(PP[h], SP[h])
+                _copy1(AUX[h], SA[h])
+                _copy1(CNT[h], SC[h])
                 if k == 2:
-                    MEM[h, :] = SM[h, :]
+                    _copy1(MEM[h], SM[h])
             ns[0] = nh
             ns[1] = rep
             return i, STOP_UNDONE
         if k == 2 and reversal and AUX[order[ns[1]], L.A_STILL] != 0.0:
-            if _spawn_reversals(order, ns, X, PP, AUX, CNT, MEM):
+            if _spawn_reversals(order, ns, X, PP, AUX, CNT, MEM, cfg):
                 _prune(order, ns, X, AUX, length_m, window, prune_ratio, switch_ratio, max_hyps, keep, key)
         branch = False
         if nj > 0 and (k == 3 or (k == 2 and code == K.O_ACCEPTED)):
@@ -370,13 +395,17 @@ def run_segment(
 
 @njit(cache=False)  # calls sfa.kernels.interp_at: compiled per process like run_segment
 def interp_many(ts, arr, s, valid):
-    """``sfa.kernels.interp_at`` per element where ``valid`` and ts[0] <= s <= ts[-1]; NaN elsewhere."""
+    """``sfa.kernels.interp_at`` per element where ``valid`` and ts[0] <= s <= ts[-1]; NaN elsewhere.
+
+    The segment search starts from the previous element's segment (``seg_hint``: the same segment as
+    ``interp_at``'s binary search, found in O(1) along a trajectory)."""
     out = np.full(s.shape[0], np.nan)
     lo = ts[0]
     hi = ts[ts.shape[0] - 1]
+    hint = np.zeros(L.NAUX)
     for i in range(s.shape[0]):
         if valid[i] and lo <= s[i] <= hi:
-            out[i] = K.interp_at(ts, arr, s[i])
+            out[i] = K.interp_seg(ts, arr, s[i], K.seg_hint(ts, s[i], hint))
     return out
 
 

@@ -542,6 +542,8 @@ class _FilterRun:
         )
         self.order = np.zeros(self.cap, dtype=np.int64)
         self.ns = np.zeros(2, dtype=np.int64)
+        self.work_i = np.zeros((2, self.cap), dtype=np.int64)  # run_segment's scratch (it allocates nothing)
+        self.work_f = np.zeros(self.cap)
 
     def _entry(self):
         """(line, spawned) when the compiled loop can take the filter as it is, else None."""
@@ -626,6 +628,8 @@ class _FilterRun:
             self.out_f,
             self.out_i,
             self.stale,
+            self.work_i,
+            self.work_f,
         )
         j = int(j)
         if why == STOP_UNDONE:

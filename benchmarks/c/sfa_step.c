@@ -1,18 +1,18 @@
 /*
  * C reference of the SFA filter step: the same state, the same equations, the same branch structure
- * as sfa/kernels.py (prediction with the held IMU force, gyro update, odometer update with slip
- * detection / rewind / ZUPT, GNSS update with late-fix back-propagation, step/ramp detection and
- * re-acquisition, covariance conditioning, status) and the loop of sfa.batch.run_packed.
+ * as sfa/kernels.py (prediction with the held IMU force into a pending covariance block, gyro window
+ * update, odometer update with slip detection / rewind / ZUPT, GNSS update with late-fix
+ * back-propagation, step/ramp detection and re-acquisition, covariance conditioning, status) and the
+ * loop of sfa.batch.run_packed.
  *
  * It exists to measure the physical limit of the filter step on this machine ("how fast could the
  * same arithmetic go in plain C -O2"), so sfa bench can report SFA's compiled core as a ratio to it.
  * The slot indices come from sfa_layout.h, generated from sfa/layout.py at build time
- * (benchmarks/c/cref.py), so the two cannot drift. Every line follows the Python kernel of the same
- * name; the equations are documented there and in docs/filter.md.
- *
- * The only intended difference is the order of floating-point sums inside the small matrix products
- * (numpy/BLAS versus the plain loops here): results agree to rounding (the bench prints the largest
- * difference).
+ * (benchmarks/c/cref.py), so the two cannot drift. Every function follows the Python kernel of the
+ * same name line by line (same operations, same order, same association, the same aux scratch slots
+ * for P h' and the gain), so the results are bit-identical to numba's: both are IEEE double without
+ * fast-math or FMA contraction (-std=c99 implies -ffp-contract=off) and call the same libm. The
+ * equations are documented in sfa/kernels.py and docs/filter.md.
  */
 #include <math.h>
 #include <string.h>
@@ -24,9 +24,12 @@ enum { O_ACCEPTED = 0, O_GATED = 1, O_LATE = 2, O_INVALID = 3, O_NOT_INIT = 4, O
 #define PIJ(P, i, j) ((P)[(i) * NX + (j)])
 #define BIG 1e100
 
+static double sq(double a) { return a * a; } /* numba's x ** 2 */
+
 /* ------------------------------------------------------------------ track geometry */
 static long seg_index(const double *ts, long n, double s) {
-    /* np.searchsorted(ts, s, side="right") - 1, clamped to [0, n - 2] */
+    /* np.searchsorted(ts, s, side="right") - 1, clamped to [0, n - 2]; NaN sorts last, as in numpy */
+    if (isnan(s)) return n - 2;
     long lo = 0, hi = n;
     while (lo < hi) {
         long mid = (lo + hi) >> 1;
@@ -35,6 +38,21 @@ static long seg_index(const double *ts, long n, double s) {
     long i = lo - 1;
     if (i < 0) i = 0;
     if (i > n - 2) i = n - 2;
+    return i;
+}
+
+static long seg_hint(const double *ts, long n, double s, double *aux) {
+    if (s >= ts[n - 1]) return n - 2;
+    long i = (long)aux[A_SEG];
+    if (0 <= i && i <= n - 2 && ts[i] <= s) {
+        if (s < ts[i + 1]) return i;
+        if (i + 1 <= n - 2 && s < ts[i + 2]) {
+            aux[A_SEG] = (double)(i + 1);
+            return i + 1;
+        }
+    }
+    i = seg_index(ts, n, s);
+    aux[A_SEG] = (double)i;
     return i;
 }
 
@@ -50,39 +68,49 @@ static void geom_at(const double *ts, const double *te, const double *tn, long n
     *no = tn[i] + *dn * u;
 }
 
-static double interp_at(const double *ts, const double *arr, long n, double s) {
+static double interp_seg(const double *ts, const double *arr, long n, double s, long i) {
     if (s <= ts[0]) return arr[0];
     if (s >= ts[n - 1]) return arr[n - 1];
-    long i = seg_index(ts, n, s);
     double ds = ts[i + 1] - ts[i];
     if (ds <= 0.0) return arr[i];
     return arr[i] + (arr[i + 1] - arr[i]) * (s - ts[i]) / ds;
 }
 
-static double slope_at(const double *ts, const double *arr, long n, double s) {
-    if (s <= ts[0] || s >= ts[n - 1]) return 0.0;
-    long i = seg_index(ts, n, s);
+static double interp_at(const double *ts, const double *arr, long n, double s) {
+    return interp_seg(ts, arr, n, s, seg_index(ts, n, s));
+}
+
+static double interp_slope_at(const double *ts, const double *arr, long n, double s, long i, double *slope) {
+    *slope = 0.0;
+    if (s <= ts[0]) return arr[0];
+    if (s >= ts[n - 1]) return arr[n - 1];
     double ds = ts[i + 1] - ts[i];
-    if (ds <= 0.0) return 0.0;
-    return (arr[i + 1] - arr[i]) / ds;
+    if (ds <= 0.0) return arr[i];
+    *slope = (arr[i + 1] - arr[i]) / ds;
+    return arr[i] + (arr[i + 1] - arr[i]) * (s - ts[i]) / ds;
 }
 
 /* ------------------------------------------------------------------ covariance hygiene */
-static int cholesky_ok(const double *P) {
-    double L[NX * NX];
-    memset(L, 0, sizeof L);
+static int cholesky_ok(double *P) {
+    /* in place as the Python: the factor's strict lower triangle in P's, restored from the upper */
+    int ok = 1;
     for (int j = 0; j < NX; j++) {
         double d = PIJ(P, j, j);
-        for (int k = 0; k < j; k++) d -= PIJ(L, j, k) * PIJ(L, j, k);
-        if (!(d > 0.0) || !isfinite(d)) return 0;
-        PIJ(L, j, j) = sqrt(d);
+        for (int k = 0; k < j; k++) d -= PIJ(P, j, k) * PIJ(P, j, k);
+        if (!(d > 0.0) || !isfinite(d)) {
+            ok = 0;
+            break;
+        }
+        double ljj = sqrt(d);
         for (int i = j + 1; i < NX; i++) {
-            double v = PIJ(P, i, j);
-            for (int k = 0; k < j; k++) v -= PIJ(L, i, k) * PIJ(L, j, k);
-            PIJ(L, i, j) = v / PIJ(L, j, j);
+            double v = PIJ(P, j, i);
+            for (int k = 0; k < j; k++) v -= PIJ(P, i, k) * PIJ(P, j, k);
+            PIJ(P, i, j) = v / ljj;
         }
     }
-    return 1;
+    for (int i = 0; i < NX; i++)
+        for (int j = 0; j < i; j++) PIJ(P, i, j) = PIJ(P, j, i);
+    return ok;
 }
 
 static int symmetrise_floor(double *P, const double *cfg) {
@@ -102,6 +130,18 @@ static int symmetrise_floor(double *P, const double *cfg) {
     return repaired;
 }
 
+static int floor_diag(double *P, const double *cfg) {
+    double pmin = cfg[K_P_MIN_VAR];
+    int repaired = 0;
+    for (int i = 0; i < NX; i++) {
+        if (!(PIJ(P, i, i) >= pmin)) {
+            PIJ(P, i, i) = pmin;
+            repaired = 1;
+        }
+    }
+    return repaired;
+}
+
 static void condition_cov(double *P, const double *cfg, long *cnt) {
     int repaired = symmetrise_floor(P, cfg);
     if (!cholesky_ok(P)) {
@@ -113,57 +153,111 @@ static void condition_cov(double *P, const double *cfg, long *cnt) {
     if (repaired) cnt[C_COV_REPAIR] += 1;
 }
 
-/* ------------------------------------------------------------------ prediction */
-static void predict_step(double *x, double *P, const double *aux, const double *cfg, const double *ts,
-                         const double *tg, long nv, double h, int imu_ok) {
+/* ------------------------------------------------------------------ prediction (lazy covariance) */
+static void predict_step(double *x, double *aux, const double *cfg, const double *ts, const double *tg,
+                         long nv, double h, int imu_ok) {
     double g = cfg[K_GRAVITY];
-    double grade = interp_at(ts, tg, nv, x[S]);
+    double grade = interp_seg(ts, tg, nv, x[S], seg_hint(ts, nv, x[S], aux));
     double sin_th = grade / sqrt(1.0 + grade * grade);
     double d = aux[A_DIR], fx = aux[A_FX], fy = aux[A_FY];
-    double a, q;
+    double a, q, fsb, fvb;
     if (imu_ok) {
         a = d * (fx - x[BA] - x[MY] * fy - x[SF] * fx) - g * sin_th;
         q = cfg[K_Q_ACC];
+        fsb = -0.5 * d * h * h;
+        fvb = -d * h;
     } else {
         a = 0.0;
         q = cfg[K_Q_NO_IMU];
+        fsb = 0.0;
+        fvb = 0.0;
     }
-    double phi = exp(-h / cfg[K_GM_TAU]);
     x[S] += x[V] * h + 0.5 * a * h * h;
     x[V] += a * h;
+    /* F_B <- F_h F_B (row S first: it reads row V before) */
+    aux[A_PB_SB] += h * aux[A_PB_VB] + fsb;
+    aux[A_PB_VB] += fvb;
+    aux[A_PB_SM] += h * aux[A_PB_VM] + fsb * fy;
+    aux[A_PB_VM] += fvb * fy;
+    aux[A_PB_SF] += h * aux[A_PB_VF] + fsb * fx;
+    aux[A_PB_VF] += fvb * fx;
+    aux[A_PB_H] += h;
+    /* Q_B <- F_h Q_B F_h' + Q_h on the (s, v, b_a) block */
+    double qss = aux[A_QB_SS], qsv = aux[A_QB_SV], qsb = aux[A_QB_SB];
+    double qvv = aux[A_QB_VV], qvb = aux[A_QB_VB], qbb = aux[A_QB_BB];
+    double rs_s = qss + h * qsv + fsb * qsb;
+    double rs_v = qsv + h * qvv + fsb * qvb;
+    double rs_b = qsb + h * qvb + fsb * qbb;
+    double rv_v = qvv + fvb * qvb;
+    double rv_b = qvb + fvb * qbb;
+    aux[A_QB_SS] = rs_s + h * rs_v + fsb * rs_b + q * h * h * h / 3.0;
+    aux[A_QB_SV] = rs_v + fvb * rs_b + q * h * h / 2.0;
+    aux[A_QB_SB] = rs_b;
+    aux[A_QB_VV] = rv_v + fvb * rv_b + q * h;
+    aux[A_QB_VB] = rv_b;
+    aux[A_QB_BB] = qbb + cfg[K_Q_BA] * h;
+}
+
+static void block_clear(double *aux) {
+    for (int k = A_PB_H; k <= A_QB_BB; k++) aux[k] = 0.0;
+}
+
+static void sync_block(double *x, double *P, double *aux, const double *cfg, long *cnt) {
+    double hb = aux[A_PB_H];
+    if (hb == 0.0) return;
+    double phi = exp(-hb / cfg[K_GM_TAU]);
     x[GE] *= phi;
     x[GN] *= phi;
-    double fsb = 0.0, fvb = 0.0;
-    if (imu_ok) {
-        fsb = -0.5 * d * h * h;
-        fvb = -d * h;
-    }
-    double fsm = fsb * fy, fvm = fvb * fy, fss = fsb * fx, fvs = fvb * fx;
+    double fsb = aux[A_PB_SB], fvb = aux[A_PB_VB];
+    double fsm = aux[A_PB_SM], fvm = aux[A_PB_VM];
+    double fss = aux[A_PB_SF], fvs = aux[A_PB_VF];
     for (int j = 0; j < NX; j++) {
         double ps = PIJ(P, S, j), pv = PIJ(P, V, j);
-        PIJ(P, S, j) = ps + h * pv + fsb * PIJ(P, BA, j) + fsm * PIJ(P, MY, j) + fss * PIJ(P, SF, j);
+        PIJ(P, S, j) = ps + hb * pv + fsb * PIJ(P, BA, j) + fsm * PIJ(P, MY, j) + fss * PIJ(P, SF, j);
         PIJ(P, V, j) = pv + fvb * PIJ(P, BA, j) + fvm * PIJ(P, MY, j) + fvs * PIJ(P, SF, j);
         PIJ(P, GE, j) *= phi;
         PIJ(P, GN, j) *= phi;
     }
     for (int i = 0; i < NX; i++) {
         double as = PIJ(P, i, S), av = PIJ(P, i, V);
-        PIJ(P, i, S) = as + h * av + fsb * PIJ(P, i, BA) + fsm * PIJ(P, i, MY) + fss * PIJ(P, i, SF);
+        PIJ(P, i, S) = as + hb * av + fsb * PIJ(P, i, BA) + fsm * PIJ(P, i, MY) + fss * PIJ(P, i, SF);
         PIJ(P, i, V) = av + fvb * PIJ(P, i, BA) + fvm * PIJ(P, i, MY) + fvs * PIJ(P, i, SF);
         PIJ(P, i, GE) *= phi;
         PIJ(P, i, GN) *= phi;
     }
-    PIJ(P, S, S) += q * h * h * h / 3.0;
-    PIJ(P, S, V) += q * h * h / 2.0;
-    PIJ(P, V, S) += q * h * h / 2.0;
-    PIJ(P, V, V) += q * h;
-    PIJ(P, BA, BA) += cfg[K_Q_BA] * h;
-    PIJ(P, KO, KO) += cfg[K_Q_KO] * h;
+    PIJ(P, S, S) += aux[A_QB_SS];
+    PIJ(P, S, V) += aux[A_QB_SV];
+    PIJ(P, V, S) += aux[A_QB_SV];
+    PIJ(P, S, BA) += aux[A_QB_SB];
+    PIJ(P, BA, S) += aux[A_QB_SB];
+    PIJ(P, V, V) += aux[A_QB_VV];
+    PIJ(P, V, BA) += aux[A_QB_VB];
+    PIJ(P, BA, V) += aux[A_QB_VB];
+    PIJ(P, BA, BA) += aux[A_QB_BB];
+    PIJ(P, KO, KO) += cfg[K_Q_KO] * hb;
     double gm = cfg[K_GM_SIGMA];
     PIJ(P, GE, GE) += gm * gm * (1.0 - phi * phi);
     PIJ(P, GN, GN) += gm * gm * (1.0 - phi * phi);
-    PIJ(P, BG, BG) += cfg[K_Q_BG] * h;
-    PIJ(P, SG, SG) += cfg[K_Q_SG] * h;
+    PIJ(P, BG, BG) += cfg[K_Q_BG] * hb;
+    PIJ(P, SG, SG) += cfg[K_Q_SG] * hb;
+    block_clear(aux);
+    if (symmetrise_floor(P, cfg)) cnt[C_COV_REPAIR] += 1;
+}
+
+/* (F_B P F_B' + Q_B)[S, S] without changing anything (pending_var_sv's first value: all status_of reads) */
+static double pending_var_s(const double *P, const double *aux) {
+    double hb = aux[A_PB_H];
+    if (hb == 0.0) return PIJ(P, S, S);
+    double sb = aux[A_PB_SB], sm_ = aux[A_PB_SM], sf = aux[A_PB_SF];
+    double ps = PIJ(P, S, S) + hb * PIJ(P, V, S) + sb * PIJ(P, BA, S) + sm_ * PIJ(P, MY, S) + sf * PIJ(P, SF, S);
+    double pv = PIJ(P, S, V) + hb * PIJ(P, V, V) + sb * PIJ(P, BA, V) + sm_ * PIJ(P, MY, V) + sf * PIJ(P, SF, V);
+    double pb = PIJ(P, S, BA) + hb * PIJ(P, V, BA) + sb * PIJ(P, BA, BA) + sm_ * PIJ(P, MY, BA)
+                + sf * PIJ(P, SF, BA);
+    double pm = PIJ(P, S, MY) + hb * PIJ(P, V, MY) + sb * PIJ(P, BA, MY) + sm_ * PIJ(P, MY, MY)
+                + sf * PIJ(P, SF, MY);
+    double pf = PIJ(P, S, SF) + hb * PIJ(P, V, SF) + sb * PIJ(P, BA, SF) + sm_ * PIJ(P, MY, SF)
+                + sf * PIJ(P, SF, SF);
+    return ps + hb * pv + sb * pb + sm_ * pm + sf * pf + aux[A_QB_SS];
 }
 
 static void predict_to(double *x, double *P, double *aux, long *cnt, const double *cfg, const double *ts,
@@ -175,23 +269,18 @@ static void predict_to(double *x, double *P, double *aux, long *cnt, const doubl
     if (n < 1) n = 1;
     if (n > 10000) n = 10000; /* a long confirmed gap: keep the cost bounded */
     double h = dt_total / (double)n;
-    for (long k = 0; k < n; k++) predict_step(x, P, aux, cfg, ts, tg, nv, h, imu_ok);
+    for (long k = 0; k < n; k++) predict_step(x, aux, cfg, ts, tg, nv, h, imu_ok);
     aux[A_T_STATE] = t;
-    if (n > 10)
+    if (n > 10) {
+        sync_block(x, P, aux, cfg, cnt);
         condition_cov(P, cfg, cnt);
-    else if (symmetrise_floor(P, cfg))
-        cnt[C_COV_REPAIR] += 1;
+    }
 }
 
 /* ------------------------------------------------------------------ updates (as sfa/kernels.py) */
-/* scalar measurement: h has nonzeros h0 .. h4 at i0 .. i4 (index < 0: unused) */
-typedef struct {
-    double pht[NX], k[NX];
-    double sm, nis;
-} Innov1;
-
-static void innovation1(const double *P, int i0, double h0, int i1, double h1, int i2, double h2, int i3,
-                        double h3, int i4, double h4, double r, double y, Innov1 *o) {
+/* scalar measurement: h has nonzeros h0 .. h4 at i0 .. i4 (index < 0: unused); P h' into aux scratch */
+static double innovation1(const double *P, double *aux, int i0, double h0, int i1, double h1, int i2,
+                          double h2, int i3, double h3, int i4, double h4, double r, double y, double *nis) {
     for (int i = 0; i < NX; i++) {
         double v = 0.0;
         if (i0 >= 0) v += PIJ(P, i, i0) * h0;
@@ -199,60 +288,69 @@ static void innovation1(const double *P, int i0, double h0, int i1, double h1, i
         if (i2 >= 0) v += PIJ(P, i, i2) * h2;
         if (i3 >= 0) v += PIJ(P, i, i3) * h3;
         if (i4 >= 0) v += PIJ(P, i, i4) * h4;
-        o->pht[i] = v;
+        aux[A_WK_PHT + i] = v;
     }
     double sm = r;
-    if (i0 >= 0) sm += h0 * o->pht[i0];
-    if (i1 >= 0) sm += h1 * o->pht[i1];
-    if (i2 >= 0) sm += h2 * o->pht[i2];
-    if (i3 >= 0) sm += h3 * o->pht[i3];
-    if (i4 >= 0) sm += h4 * o->pht[i4];
-    o->sm = sm;
-    o->nis = y * y / sm;
+    if (i0 >= 0) sm += h0 * aux[A_WK_PHT + i0];
+    if (i1 >= 0) sm += h1 * aux[A_WK_PHT + i1];
+    if (i2 >= 0) sm += h2 * aux[A_WK_PHT + i2];
+    if (i3 >= 0) sm += h3 * aux[A_WK_PHT + i3];
+    if (i4 >= 0) sm += h4 * aux[A_WK_PHT + i4];
+    *nis = y * y / sm;
+    return sm;
 }
 
-static int apply_update1(double *x, double *P, Innov1 *in, double y, const double *cfg, long *cnt) {
-    double sm = in->sm;
+static void gyro_window_shift(double *aux, double d_s, double d_v, double d_bg, double d_sg, double d_mx) {
+    if (aux[A_GY_N] > 0.0)
+        aux[A_GY_Y] -= (aux[A_GY_HS] * d_s + aux[A_GY_HV] * d_v + aux[A_GY_N] * d_bg + aux[A_GY_HSG] * d_sg
+                        + aux[A_GY_HMX] * d_mx);
+}
+
+static int apply_update1(double *x, double *P, double *aux, double sm, double y, const double *cfg, long *cnt) {
     if (!(isfinite(sm) && 0.0 < sm && sm <= BIG)) return 0;
     for (int i = 0; i < NX; i++) {
-        double p = in->pht[i];
+        double p = aux[A_WK_PHT + i];
         double k = p / sm;
-        in->k[i] = k;
+        aux[A_WK_K + i] = k;
         if (!(fabs(p) <= BIG && fabs(k) <= BIG && fabs(k * y) <= BIG)) return 0;
     }
+    gyro_window_shift(aux, aux[A_WK_K + S] * y, aux[A_WK_K + V] * y, aux[A_WK_K + BG] * y,
+                      aux[A_WK_K + SG] * y, aux[A_WK_K + MX] * y);
     for (int i = 0; i < NX; i++) {
-        x[i] += in->k[i] * y;
-        double ki = in->k[i], pi = in->pht[i];
-        for (int j = 0; j < NX; j++) {
-            double kj = in->k[j], pj = in->pht[j];
-            PIJ(P, i, j) = PIJ(P, i, j) - (ki * pj + pi * kj) + sm * (ki * kj);
+        x[i] += aux[A_WK_K + i] * y;
+        double ki = aux[A_WK_K + i], pi = aux[A_WK_PHT + i];
+        for (int j = i; j < NX; j++) {
+            double kj = aux[A_WK_K + j], pj = aux[A_WK_PHT + j];
+            double v = PIJ(P, i, j) - (ki * pj + pi * kj) + sm * (ki * kj);
+            PIJ(P, i, j) = v;
+            PIJ(P, j, i) = v;
         }
     }
-    condition_cov(P, cfg, cnt);
+    if (floor_diag(P, cfg)) cnt[C_COV_REPAIR] += 1;
     return 1;
 }
 
-/* two rows (GNSS): H is 2 x NX row-major, R 2 x 2 */
+/* two rows (GNSS): H is 2 x NX row-major, R 2 x 2; P H' into aux scratch */
 typedef struct {
-    double pht0[NX], pht1[NX], k0[NX], k1[NX];
     double s00, s01, s11, si00, si01, si11, nis;
 } Innov2;
 
-static void innovation2(const double *P, const double *H, const double *R, const double *y, Innov2 *o) {
+static void innovation2(const double *P, double *aux, const double *H, const double *R, const double *y,
+                        Innov2 *o) {
     for (int i = 0; i < NX; i++) {
         double a = 0.0, b = 0.0;
         for (int k = 0; k < NX; k++) {
             a += PIJ(P, i, k) * H[k];
             b += PIJ(P, i, k) * H[NX + k];
         }
-        o->pht0[i] = a;
-        o->pht1[i] = b;
+        aux[A_WK_PHT + i] = a;
+        aux[A_WK_PHT + NX + i] = b;
     }
     double s00 = R[0], s01 = R[1], s11 = R[3];
     for (int k = 0; k < NX; k++) {
-        s00 += H[k] * o->pht0[k];
-        s01 += H[k] * o->pht1[k];
-        s11 += H[NX + k] * o->pht1[k];
+        s00 += H[k] * aux[A_WK_PHT + k];
+        s01 += H[k] * aux[A_WK_PHT + NX + k];
+        s11 += H[NX + k] * aux[A_WK_PHT + NX + k];
     }
     double det = s00 * s11 - s01 * s01;
     o->s00 = s00;
@@ -264,22 +362,25 @@ static void innovation2(const double *P, const double *H, const double *R, const
     o->nis = y[0] * (o->si00 * y[0] + o->si01 * y[1]) + y[1] * (o->si01 * y[0] + o->si11 * y[1]);
 }
 
-static int apply_update2(double *x, double *P, Innov2 *in, const double *y, const double *cfg, long *cnt) {
+static int apply_update2(double *x, double *P, double *aux, const double *y, const Innov2 *in,
+                         const double *cfg, long *cnt) {
     for (int i = 0; i < NX; i++) {
-        double p0 = in->pht0[i], p1 = in->pht1[i];
+        double p0 = aux[A_WK_PHT + i], p1 = aux[A_WK_PHT + NX + i];
         double k0 = p0 * in->si00 + p1 * in->si01;
         double k1 = p0 * in->si01 + p1 * in->si11;
-        in->k0[i] = k0;
-        in->k1[i] = k1;
+        aux[A_WK_K + i] = k0;
+        aux[A_WK_K + NX + i] = k1;
         if (!(isfinite(k0) && isfinite(k1) && isfinite(x[i] + k0 * y[0] + k1 * y[1]))) return 0;
     }
     for (int rep = 0; rep < 2; rep++)
         for (int i = 0; i < NX; i++) {
-            double ki0 = in->k0[i], ki1 = in->k1[i], pi0 = in->pht0[i], pi1 = in->pht1[i];
+            double ki0 = aux[A_WK_K + i], ki1 = aux[A_WK_K + NX + i];
+            double pi0 = aux[A_WK_PHT + i], pi1 = aux[A_WK_PHT + NX + i];
             double a0 = ki0 * in->s00 + ki1 * in->s01;
             double a1 = ki0 * in->s01 + ki1 * in->s11;
             for (int j = 0; j < NX; j++) {
-                double kj0 = in->k0[j], kj1 = in->k1[j], pj0 = in->pht0[j], pj1 = in->pht1[j];
+                double kj0 = aux[A_WK_K + j], kj1 = aux[A_WK_K + NX + j];
+                double pj0 = aux[A_WK_PHT + j], pj1 = aux[A_WK_PHT + NX + j];
                 double v = PIJ(P, i, j) - (ki0 * pj0 + ki1 * pj1) - (pi0 * kj0 + pi1 * kj1) + (a0 * kj0 + a1 * kj1);
                 if (rep == 0) {
                     if (!isfinite(v)) return 0;
@@ -288,7 +389,12 @@ static int apply_update2(double *x, double *P, Innov2 *in, const double *y, cons
                 }
             }
         }
-    for (int i = 0; i < NX; i++) x[i] += in->k0[i] * y[0] + in->k1[i] * y[1];
+    gyro_window_shift(aux, aux[A_WK_K + S] * y[0] + aux[A_WK_K + NX + S] * y[1],
+                      aux[A_WK_K + V] * y[0] + aux[A_WK_K + NX + V] * y[1],
+                      aux[A_WK_K + BG] * y[0] + aux[A_WK_K + NX + BG] * y[1],
+                      aux[A_WK_K + SG] * y[0] + aux[A_WK_K + NX + SG] * y[1],
+                      aux[A_WK_K + MX] * y[0] + aux[A_WK_K + NX + MX] * y[1]);
+    for (int i = 0; i < NX; i++) x[i] += aux[A_WK_K + i] * y[0] + aux[A_WK_K + NX + i] * y[1];
     condition_cov(P, cfg, cnt);
     return 1;
 }
@@ -330,7 +436,7 @@ static long status_of(const double *x, const double *P, const double *aux, const
     if (aux[A_STILL] != 0.0) bits |= R_STANDSTILL;
     if (cfg[K_IMU_STUCK_N] > 0.0 && aux[A_IMU_SAME] >= cfg[K_IMU_STUCK_N]) bits |= R_IMU_STUCK;
     if (t - aux[A_IMU_FAULT_T] <= cfg[K_IMU_FAULT_HOLD]) bits |= R_IMU_FAULT;
-    double var = PIJ(P, S, S);
+    double var = pending_var_s(P, aux);
     double sigma = var > 0.0 ? sqrt(var) : 0.0;
     if (sigma > cfg[K_LOST_SIGMA]) bits |= R_SIGMA_LOST;
     else if (sigma > cfg[K_DEGRADED_SIGMA]) bits |= R_SIGMA_HIGH;
@@ -371,9 +477,10 @@ static void mem_push_imu(double *mem, double t, double fx, double fy) {
     mem[MEM_H0 + 3 * i + 2] = fy;
 }
 
-static void mem_rotate(const double *x, const double *P, const double *aux, double *mem, const double *cfg,
-                       double t) {
+static void mem_rotate(const double *x, double *P, const double *aux, long *cnt, double *mem,
+                       const double *cfg, double t) {
     if (cfg[K_SNAP_PERIOD] <= 0.0 || t - mem[MEM_T_ROT] < cfg[K_SNAP_PERIOD]) return;
+    condition_cov(P, cfg, cnt);
     memmove(mem + MEM_A, mem + MEM_B, sizeof(double) * SNAP);
     mem_save(x, P, aux, mem, MEM_B);
     mem[MEM_T_ROT] = t;
@@ -390,6 +497,8 @@ static int rewind_imu_only(double *x, double *P, double *aux, long *cnt, const d
     memcpy(x, mem + MEM_A, sizeof(double) * NX);
     memcpy(P, mem + MEM_A + NX, sizeof(double) * NX * NX);
     aux[A_T_STATE] = t_snap;
+    block_clear(aux); /* the snapshot's P is at its own time; the re-propagation starts a block */
+    aux[A_GY_N] = 0.0; /* the window's residuals belong to the abandoned trajectory */
     aux[A_FX] = mem[k + 1];
     aux[A_FY] = mem[k + 2];
     PIJ(P, BA, BA) += ba_var_add;
@@ -417,18 +526,21 @@ static long step_init(double *x, double *P, double *aux, long *cnt, double *mem,
                       double direction) {
     if (!(isfinite(t) && isfinite(s) && isfinite(v)) || fabs(v) > 1000.0 || fabs(direction) != 1.0)
         return O_INVALID;
-    if (aux[A_INIT] == 0.0) {
+    if (aux[A_INIT] != 0.0) {
+        sync_block(x, P, aux, cfg, cnt); /* the kept error states' covariance, up to the old state time */
+    } else {
+        block_clear(aux);
         memset(x, 0, sizeof(double) * NX);
         memset(P, 0, sizeof(double) * NX * NX);
-        PIJ(P, BA, BA) = pow(cfg[K_INIT_SIGMA_BA], 2);
-        PIJ(P, KO, KO) = pow(cfg[K_INIT_SIGMA_KO], 2);
-        PIJ(P, GE, GE) = pow(cfg[K_GM_SIGMA], 2);
-        PIJ(P, GN, GN) = pow(cfg[K_GM_SIGMA], 2);
-        PIJ(P, BG, BG) = pow(cfg[K_INIT_SIGMA_BG], 2);
-        PIJ(P, MY, MY) = pow(cfg[K_INIT_SIGMA_MY], 2);
-        PIJ(P, SF, SF) = pow(cfg[K_INIT_SIGMA_SF], 2);
-        PIJ(P, SG, SG) = pow(cfg[K_INIT_SIGMA_SG], 2);
-        PIJ(P, MX, MX) = pow(cfg[K_INIT_SIGMA_MX], 2);
+        PIJ(P, BA, BA) = sq(cfg[K_INIT_SIGMA_BA]);
+        PIJ(P, KO, KO) = sq(cfg[K_INIT_SIGMA_KO]);
+        PIJ(P, GE, GE) = sq(cfg[K_GM_SIGMA]);
+        PIJ(P, GN, GN) = sq(cfg[K_GM_SIGMA]);
+        PIJ(P, BG, BG) = sq(cfg[K_INIT_SIGMA_BG]);
+        PIJ(P, MY, MY) = sq(cfg[K_INIT_SIGMA_MY]);
+        PIJ(P, SF, SF) = sq(cfg[K_INIT_SIGMA_SF]);
+        PIJ(P, SG, SG) = sq(cfg[K_INIT_SIGMA_SG]);
+        PIJ(P, MX, MX) = sq(cfg[K_INIT_SIGMA_MX]);
     }
     for (int i = 0; i < NX; i++) {
         PIJ(P, S, i) = 0.0;
@@ -439,8 +551,8 @@ static long step_init(double *x, double *P, double *aux, long *cnt, double *mem,
     x[S] = s;
     x[V] = direction * v;
     aux[A_DIR] = direction;
-    PIJ(P, S, S) = pow(cfg[K_INIT_SIGMA_S], 2);
-    PIJ(P, V, V) = pow(cfg[K_INIT_SIGMA_V], 2);
+    PIJ(P, S, S) = sq(cfg[K_INIT_SIGMA_S]);
+    PIJ(P, V, V) = sq(cfg[K_INIT_SIGMA_V]);
     double grade = interp_at(ts, tg, nv, s);
     aux[A_FX] = x[BA] + direction * cfg[K_GRAVITY] * grade / sqrt(1.0 + grade * grade);
     aux[A_FY] = 0.0;
@@ -467,6 +579,7 @@ static long step_init(double *x, double *P, double *aux, long *cnt, double *mem,
     aux[A_IMU_FAULT_T] = -INFINITY;
     aux[A_SLIP_DS] = 0.0;
     aux[A_T_ODO_SEEN] = t;
+    aux[A_GY_N] = 0.0;
     mem_reset(mem);
     cnt[C_INIT] += 1;
     condition_cov(P, cfg, cnt);
@@ -481,6 +594,28 @@ static double roll_cos(double f_lat, double f_up, double fy, double fz) {
     double phi = atan2(f_up, f_lat) - atan2(fz, fy);
     if (!(fabs(phi) <= 0.35)) return 1.0;
     return cos(phi);
+}
+
+/* one gyro update from the window's n samples (mean residual, mean Jacobian, R = sigma_g^2 / n + mean
+   (v sigma_k)^2); empties the window first, so its own correction does not shift it */
+static void gyro_window_update(double *x, double *P, double *aux, long *cnt, const double *cfg) {
+    double n = aux[A_GY_N];
+    aux[A_GY_N] = 0.0;
+    sync_block(x, P, aux, cfg, cnt);
+    double r = sq(cfg[K_GYRO_SIGMA]) / n + aux[A_GY_RC] / n;
+    double y = aux[A_GY_Y] / n;
+    double nis;
+    double sm = innovation1(P, aux, S, aux[A_GY_HS] / n, V, aux[A_GY_HV] / n, BG, 1.0, SG, aux[A_GY_HSG] / n,
+                            MX, aux[A_GY_HMX] / n, r, y, &nis);
+    aux[A_LAST_NIS_GYRO] = nis;
+    if (nis <= cfg[K_GATE_GYRO]) {
+        if (apply_update1(x, P, aux, sm, y, cfg, cnt)) {
+            cnt[C_GYRO_OK] += 1;
+            aux[A_GYRO_OK] = 1.0;
+        }
+    } else {
+        cnt[C_GYRO_GATED] += 1;
+    }
 }
 
 static long step_imu(double *x, double *P, double *aux, long *cnt, double *mem, const double *cfg,
@@ -533,24 +668,34 @@ static long step_imu(double *x, double *P, double *aux, long *cnt, double *mem, 
     aux[A_LAST_NIS_GYRO] = -1.0;
     aux[A_GYRO_OK] = 0.0;
     if (cfg[K_USE_GYRO] != 0.0 && fabs(x[V]) >= cfg[K_GYRO_MIN_SPEED]) {
-        Innov1 in;
-        double k = interp_at(ts, tk, nv, x[S]);
-        double dk_ds = slope_at(ts, tk, nv, x[S]);
+        /* the window spans too long: apply what it holds, before this sample's residual */
+        if (aux[A_GY_N] > 0.0 && t - aux[A_GY_T0] > cfg[K_GYRO_AVG_MAX_S]) gyro_window_update(x, P, aux, cnt, cfg);
+        double dk_ds;
+        double k = interp_slope_at(ts, tk, nv, x[S], seg_hint(ts, nv, x[S], aux), &dk_ds);
         double c = 1.0;
         if (cfg[K_GYRO_TILT] != 0.0) c = roll_cos(x[V] * x[V] * aux[A_DIR] * k, -cfg[K_GRAVITY], fy, fz);
         double g1 = c * (1.0 + x[SG]);
-        double h_s = g1 * x[V] * dk_ds;
-        double r = pow(cfg[K_GYRO_SIGMA], 2) + pow(x[V] * cfg[K_CURV_SIGMA], 2); /* sensor + v * curvature error */
         double y = wz - (g1 * x[V] * k + x[BG] + x[MX] * wx);
-        innovation1(P, S, h_s, V, g1 * k, BG, 1.0, SG, c * x[V] * k, MX, wx, r, y, &in);
-        aux[A_LAST_NIS_GYRO] = in.nis;
-        if (in.nis <= cfg[K_GATE_GYRO]) {
-            apply_update1(x, P, &in, y, cfg, cnt);
-            cnt[C_GYRO_OK] += 1;
-            aux[A_GYRO_OK] = 1.0;
-        } else {
-            cnt[C_GYRO_GATED] += 1;
+        if (aux[A_GY_N] == 0.0) {
+            aux[A_GY_T0] = t;
+            aux[A_GY_Y] = 0.0;
+            aux[A_GY_HS] = 0.0;
+            aux[A_GY_HV] = 0.0;
+            aux[A_GY_HSG] = 0.0;
+            aux[A_GY_HMX] = 0.0;
+            aux[A_GY_RC] = 0.0;
         }
+        aux[A_GY_N] += 1.0;
+        aux[A_GY_TL] = t;
+        aux[A_GY_Y] += y;
+        aux[A_GY_HS] += g1 * x[V] * dk_ds;
+        aux[A_GY_HV] += g1 * k;
+        aux[A_GY_HSG] += c * x[V] * k;
+        aux[A_GY_HMX] += wx;
+        aux[A_GY_RC] += sq(x[V] * cfg[K_CURV_SIGMA]); /* v * curvature error: does not average out */
+        if (aux[A_GY_N] >= cfg[K_GYRO_AVG_N]) gyro_window_update(x, P, aux, cnt, cfg);
+    } else {
+        aux[A_GY_N] = 0.0; /* a window holds consecutive samples that all qualify */
     }
     return O_ACCEPTED;
 }
@@ -571,15 +716,15 @@ static long step_odo(double *x, double *P, double *aux, long *cnt, double *mem, 
         return O_LATE;
     }
     predict_to(x, P, aux, cnt, cfg, ts, tg, nv, t);
+    sync_block(x, P, aux, cfg, cnt);
     check_timeouts(aux, cnt, cfg, t);
     double sig = sigma > cfg[K_ODO_SIGMA_MIN] ? sigma : cfg[K_ODO_SIGMA_MIN];
-    Innov1 in;
     double d = aux[A_DIR];
     double h_v = d * (1.0 + x[KO]), h_ko = d * x[V];
-    double r = sig * sig + pow(cfg[K_ODO_QUANT], 2) / 12.0;
+    double r = sig * sig + sq(cfg[K_ODO_QUANT]) / 12.0;
     double y = speed - d * x[V] * (1.0 + x[KO]);
-    innovation1(P, V, h_v, KO, h_ko, -1, 0.0, -1, 0.0, -1, 0.0, r, y, &in);
-    double nis = in.nis;
+    double nis;
+    double sm = innovation1(P, aux, V, h_v, KO, h_ko, -1, 0.0, -1, 0.0, -1, 0.0, r, y, &nis);
     aux[A_LAST_NIS_ODO] = nis;
     if (aux[A_SLIP] != 0.0) {
         double dt = t - aux[A_T_ODO_SEEN];
@@ -606,12 +751,11 @@ static long step_odo(double *x, double *P, double *aux, long *cnt, double *mem, 
             aux[A_SLIP_DS] = 0.0;
         } else if (aux[A_SLIP] != 0.0 && t - aux[A_SLIP_T0] > cfg[K_SLIP_MAX_S]) {
             PIJ(P, V, V) += y * y;
-            PIJ(P, BA, BA) += pow(cfg[K_SLIP_BA_SIGMA], 2);
-            PIJ(P, S, S) += aux[A_SLIP_DS] * aux[A_SLIP_DS];
+            PIJ(P, BA, BA) += sq(cfg[K_SLIP_BA_SIGMA]);
+            PIJ(P, S, S) += sq(aux[A_SLIP_DS]);
             aux[A_IMU_FAULT_T] = t;
             cnt[C_IMU_FAULT] += 1;
-            innovation1(P, V, h_v, KO, h_ko, -1, 0.0, -1, 0.0, -1, 0.0, r, y, &in);
-            nis = in.nis;
+            sm = innovation1(P, aux, V, h_v, KO, h_ko, -1, 0.0, -1, 0.0, -1, 0.0, r, y, &nis);
             use = 1;
             aux[A_SLIP] = 0.0;
             aux[A_SLIP_BAD] = 0.0;
@@ -631,19 +775,21 @@ static long step_odo(double *x, double *P, double *aux, long *cnt, double *mem, 
         use = 1;
     }
     if (use) {
-        if (apply_update1(x, P, &in, y, cfg, cnt)) {
+        if (apply_update1(x, P, aux, sm, y, cfg, cnt)) {
             cnt[C_ODO_OK] += 1;
             aux[A_T_ODO] = t;
             outcome = O_ACCEPTED;
             if (aux[A_SLIP] == 0.0 && aux[A_SLIP_BAD] == 0.0 && nis <= cfg[K_GATE_ODO] / 4.0)
-                mem_rotate(x, P, aux, mem, cfg, t);
+                mem_rotate(x, P, aux, cnt, mem, cfg, t);
         }
     }
     if (still) {
+        sync_block(x, P, aux, cfg, cnt); /* (a rewind above re-propagated P into a new block) */
         double yz = -x[V];
-        innovation1(P, V, 1.0, -1, 0.0, -1, 0.0, -1, 0.0, -1, 0.0, pow(cfg[K_ZUPT_SIGMA], 2), yz, &in);
-        if (in.nis <= cfg[K_GATE_ZUPT])
-            if (apply_update1(x, P, &in, yz, cfg, cnt)) cnt[C_ZUPT] += 1;
+        double rz = sq(cfg[K_ZUPT_SIGMA]);
+        sm = innovation1(P, aux, V, 1.0, -1, 0.0, -1, 0.0, -1, 0.0, -1, 0.0, rz, yz, &nis);
+        if (nis <= cfg[K_GATE_ZUPT])
+            if (apply_update1(x, P, aux, sm, yz, cfg, cnt)) cnt[C_ZUPT] += 1;
     }
     return outcome;
 }
@@ -674,6 +820,7 @@ static long step_gps(double *x, double *P, double *aux, long *cnt, const double 
         predict_to(x, P, aux, cnt, cfg, ts, tg, nv, t);
         dl = 0.0;
     }
+    sync_block(x, P, aux, cfg, cnt);
     if (t - aux[A_T_GPS] > cfg[K_GPS_TIMEOUT] && aux[A_GPS_REJ] == 0.0) {
         double gm = cfg[K_GM_SIGMA];
         for (int i = 0; i < NX; i++) {
@@ -706,7 +853,7 @@ static long step_gps(double *x, double *P, double *aux, long *cnt, const double 
         sw *= sigma_h / cfg[K_GPS_NOMINAL_SIGMA_H];
     double tnorm = sqrt(de * de + dn * dn);
     double ue = de / tnorm, un = dn / tnorm;
-    double sl2 = pow(cfg[K_TRACK_LAT], 2);
+    double sl2 = sq(cfg[K_TRACK_LAT]);
     R[0] = sw * sw + sl2 * un * un;
     R[3] = sw * sw + sl2 * ue * ue;
     R[1] = -sl2 * ue * un;
@@ -719,7 +866,7 @@ static long step_gps(double *x, double *P, double *aux, long *cnt, const double 
         R[2] += qa * ue * un;
     }
     Innov2 in;
-    innovation2(P, H, R, y, &in);
+    innovation2(P, aux, H, R, y, &in);
     aux[A_LAST_NIS_GPS] = in.nis;
     double along = y[0] * ue + y[1] * un;
     if (t < aux[A_GPS_HOLD]) {
@@ -743,8 +890,8 @@ static long step_gps(double *x, double *P, double *aux, long *cnt, const double 
         }
         if (t - aux[A_T_FIRST_GPS_REJ] >= cfg[K_REACQ_S] && aux[A_REJ_MAXDEV] <= cfg[K_REACQ_CONSIST_M]) {
             PIJ(P, S, S) += along * along + y[0] * y[0] + y[1] * y[1];
-            innovation2(P, H, R, y, &in);
-            if (apply_update2(x, P, &in, y, cfg, cnt)) {
+            innovation2(P, aux, H, R, y, &in);
+            if (apply_update2(x, P, aux, y, &in, cfg, cnt)) {
                 cnt[C_GPS_REACQ] += 1;
                 aux[A_GPS_REJ] = 0.0;
                 aux[A_STEP_FLAG] = 0.0;
@@ -776,7 +923,7 @@ static long step_gps(double *x, double *P, double *aux, long *cnt, const double 
         cnt[C_GPS_GATED] += 1;
         return O_GATED;
     }
-    if (!apply_update2(x, P, &in, y, cfg, cnt)) {
+    if (!apply_update2(x, P, aux, y, &in, cfg, cnt)) {
         cnt[C_GPS_BAD] += 1;
         return O_INVALID;
     }
