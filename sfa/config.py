@@ -83,6 +83,12 @@ class FilterConfig:
     #: variance grows by the distance the odometer travelled beyond the estimate during the slip [m/s^2]
     slip_accel_bias_sigma_mps2: float = 0.2
     imu_fault_hold_s: float = 10.0  #: how long a declared accelerometer fault stays reported [s]
+    #: GNSS arbitration of a declared slip: the fixes' log-likelihood ratio between "the accelerometer
+    #: is faulty" (the train is where the odometer says, estimate + distance the odometer travelled
+    #: beyond it) and "the odometer slips" (the IMU-bridged estimate). At +this value the accelerometer
+    #: is declared faulty and the estimate moves to the odometer's position; at -this value the slip is
+    #: confirmed. Until then the reported interval covers both positions (9.2 = 1e4:1) [-]
+    slip_arbitration_log_ratio: float = 9.2
     #: consecutive bit-identical IMU samples (all six axes) that declare the IMU stuck; a real sensor's
     #: noise never repeats exactly. 0 disables (noise-free simulated IMUs repeat legitimately) [samples]
     imu_stuck_samples: int = 10
@@ -231,4 +237,5 @@ class FilterConfig:
         c[L.K_IMU_STUCK_N] = self.imu_stuck_samples
         c[L.K_SLIP_BA_SIGMA] = self.slip_accel_bias_sigma_mps2
         c[L.K_IMU_FAULT_HOLD] = self.imu_fault_hold_s
+        c[L.K_SLIP_ARB_LLR] = self.slip_arbitration_log_ratio
         return c

@@ -74,7 +74,10 @@ from sfa.layout import (
     A_SLIP_BAD,
     A_SLIP_DS,
     A_SLIP_GOOD,
+    A_SLIP_LLR,
+    A_SLIP_S_ODO,
     A_SLIP_T0,
+    A_SLIP_V_ODO,
     A_STEP_FLAG,
     A_STILL,
     A_T_FIRST_GPS_REJ,
@@ -136,6 +139,7 @@ from sfa.layout import (
     K_GM_TAU,
     K_GPS_HOLDOFF_S,
     K_GPS_LATE_MAX,
+    K_GPS_MAX_LOGLIK_NIS,
     K_GPS_NOMINAL_SIGMA_H,
     K_GPS_TIMEOUT,
     K_GPS_WHITE,
@@ -172,6 +176,7 @@ from sfa.layout import (
     K_Q_SG,
     K_REACQ_CONSIST_M,
     K_REACQ_S,
+    K_SLIP_ARB_LLR,
     K_SLIP_BA_SIGMA,
     K_SLIP_CONFIRM_N,
     K_SLIP_MAX_S,
@@ -182,6 +187,7 @@ from sfa.layout import (
     K_STILL_SPEED,
     K_TRACK_LAT,
     K_USE_GYRO,
+    K_Z_INTERVAL,
     K_ZUPT_SIGMA,
     KO,
     MEM_A,
@@ -738,6 +744,10 @@ def status_of(x, P, aux, cfg, t):
         bits |= R_IMU_FAULT
     var, _ = pending_var_sv(P, aux)
     sigma = math.sqrt(var) if var > 0.0 else 0.0
+    if aux[A_SLIP] != 0.0 and aux[A_SLIP_LLR] > -cfg[K_SLIP_ARB_LLR]:
+        # slip or accelerometer fault not yet told apart by GNSS: the interval also covers the
+        # odometer's position, estimate + A_SLIP_DS (half-width z sigma + |A_SLIP_DS|)
+        sigma += abs(aux[A_SLIP_DS]) / cfg[K_Z_INTERVAL]
     if sigma > cfg[K_LOST_SIGMA]:
         bits |= R_SIGMA_LOST
     elif sigma > cfg[K_DEGRADED_SIGMA]:
@@ -812,6 +822,9 @@ def step_init(x, P, aux, cnt, mem, cfg, ts, tg, t, s, v, direction):
     aux[A_IMU_SAME] = 0.0
     aux[A_IMU_FAULT_T] = -math.inf
     aux[A_SLIP_DS] = 0.0
+    aux[A_SLIP_LLR] = 0.0
+    aux[A_SLIP_S_ODO] = s
+    aux[A_SLIP_V_ODO] = x[V]
     aux[A_T_ODO_SEEN] = t
     aux[A_GY_N] = 0.0
     mem_reset(mem)
@@ -1076,8 +1089,14 @@ def step_odo(x, P, aux, cnt, mem, cfg, ts, tg, t, speed, sigma):
     y = speed - d * x[V] * (1.0 + x[KO])  # y = z - d v (1 + k_o)
     sm, nis = innovation1(P, aux, V, h_v, KO, h_ko, -1, 0.0, -1, 0.0, -1, 0.0, r, y)
     aux[A_LAST_NIS_ODO] = nis
-    if aux[A_SLIP] != 0.0:  # distance the odometer travelled beyond the estimate since the declaration
-        aux[A_SLIP_DS] += y / h_v * min(max(t - aux[A_T_ODO_SEEN], 0.0), 1.0)
+    v_odo = speed / h_v  # the odometer's speed along increasing arc length, scale-corrected
+    if aux[A_SLIP] != 0.0:
+        # the odometer's own position since the declaration (trapezoid) and its distance beyond the
+        # estimate (whatever moved the estimate meanwhile: prediction, gyro or GNSS updates)
+        dt_odo = min(max(t - aux[A_T_ODO_SEEN], 0.0), 1.0)
+        aux[A_SLIP_S_ODO] += 0.5 * (aux[A_SLIP_V_ODO] + v_odo) * dt_odo
+        aux[A_SLIP_DS] = aux[A_SLIP_S_ODO] - x[S]
+    aux[A_SLIP_V_ODO] = v_odo
     aux[A_T_ODO_SEEN] = t
     imu_timely = (t - aux[A_T_IMU]) <= cfg[K_IMU_TIMEOUT]
     still = (
@@ -1088,32 +1107,50 @@ def step_odo(x, P, aux, cnt, mem, cfg, ts, tg, t, speed, sigma):
     aux[A_STILL] = 1.0 if still else 0.0
     use = False
     outcome = O_GATED
-    if nis > cfg[K_GATE_ODO]:
+    by_gnss = aux[A_SLIP] != 0.0 and aux[A_SLIP_LLR] >= cfg[K_SLIP_ARB_LLR]
+    if by_gnss or (nis > cfg[K_GATE_ODO] and aux[A_SLIP] != 0.0 and t - aux[A_SLIP_T0] > cfg[K_SLIP_MAX_S]):
+        # the accelerometer is the faulty sensor: GNSS agrees with the odometer's position (by_gnss),
+        # or the odometer has disagreed for longer than a wheel slips. Re-anchor on the odometer: widen
+        # the speed by the disagreement and the accelerometer bias; the arc length moves to the
+        # odometer's position (GNSS confirmed it) or its variance grows by that distance
+        P[V, V] += y * y
+        P[BA, BA] += cfg[K_SLIP_BA_SIGMA] ** 2
+        # the gyro sees the speed only through gz = c (1 + s_g) v k: while the faulty accelerometer
+        # bridged alone, its speed error (y, relative y / v) went into the gyro scale
+        P[SG, SG] += (y / max(abs(x[V]), 1.0)) ** 2
+        if by_gnss:
+            # the odometer's position does not depend on the accelerometer: keep the variance of s,
+            # drop its IMU-bridging correlations (with b_a, v, ...), which would drag it back
+            _gyro_window_shift(aux, aux[A_SLIP_DS], 0.0, 0.0, 0.0, 0.0)  # the window follows the move
+            x[S] += aux[A_SLIP_DS]
+            for i in range(NX):
+                if i != S:
+                    P[S, i] = 0.0
+                    P[i, S] = 0.0
+        else:
+            P[S, S] += aux[A_SLIP_DS] ** 2
+        aux[A_IMU_FAULT_T] = t
+        cnt[C_IMU_FAULT] += 1
+        sm, nis = innovation1(P, aux, V, h_v, KO, h_ko, -1, 0.0, -1, 0.0, -1, 0.0, r, y)
+        use = True
+        aux[A_SLIP] = 0.0
+        aux[A_SLIP_BAD] = 0.0
+        cnt[C_ODO_REANCHOR] += 1
+    elif nis > cfg[K_GATE_ODO]:
         aux[A_SLIP_BAD] += 1.0
         aux[A_SLIP_GOOD] = 0.0
         cnt[C_ODO_GATED] += 1
         if aux[A_SLIP] == 0.0 and aux[A_SLIP_BAD] >= cfg[K_SLIP_CONFIRM_N]:
             aux[A_SLIP] = 1.0  # slip / slide declared
             aux[A_SLIP_T0] = t
+            aux[A_SLIP_LLR] = 0.0
             cnt[C_SLIP] += 1
-            # the onset samples that passed the gate pulled the speed: rewind and use the IMU alone
+            # the onset samples that passed the gate pulled the speed: rewind and use the IMU alone.
+            # The odometer-aided position before the rewind is where the odometer puts the train
+            s_odo = x[S]
             rewind_imu_only(x, P, aux, cnt, cfg, ts, tg, mem, 0.0)
-            aux[A_SLIP_DS] = 0.0
-        elif aux[A_SLIP] != 0.0 and t - aux[A_SLIP_T0] > cfg[K_SLIP_MAX_S]:
-            # the odometer has disagreed for too long: a wheel does not slip that long, the
-            # accelerometer is the faulty sensor. Re-anchor on the odometer: widen the speed by the
-            # disagreement, the accelerometer bias, and the arc length by the distance the odometer
-            # travelled beyond the estimate during the slip
-            P[V, V] += y * y
-            P[BA, BA] += cfg[K_SLIP_BA_SIGMA] ** 2
-            P[S, S] += aux[A_SLIP_DS] ** 2
-            aux[A_IMU_FAULT_T] = t
-            cnt[C_IMU_FAULT] += 1
-            sm, nis = innovation1(P, aux, V, h_v, KO, h_ko, -1, 0.0, -1, 0.0, -1, 0.0, r, y)
-            use = True
-            aux[A_SLIP] = 0.0
-            aux[A_SLIP_BAD] = 0.0
-            cnt[C_ODO_REANCHOR] += 1
+            aux[A_SLIP_S_ODO] = s_odo
+            aux[A_SLIP_DS] = s_odo - x[S]
     elif aux[A_SLIP] != 0.0:
         aux[A_SLIP_GOOD] += 1.0
         if aux[A_SLIP_GOOD] >= cfg[K_SLIP_RELEASE_N]:
@@ -1228,6 +1265,22 @@ def step_gps(x, P, aux, cnt, cfg, ts, te, tn, tg, t, east, north, sigma_h, fix_q
     aux[A_LAST_NIS_GPS] = nis
     along = y[0] * ue + y[1] * un  # along-track component of the innovation [m]
     if t < aux[A_GPS_HOLD]:
+        cnt[C_GPS_HELD] += 1
+        return O_HELD_OFF
+    if aux[A_SLIP] != 0.0 and aux[A_SLIP_LLR] > -cfg[K_SLIP_ARB_LLR]:
+        # a declared slip not yet confirmed: GNSS arbitrates instead of correcting (an update would let
+        # the correlated GNSS error state absorb the very difference being tested). The fix against the
+        # odometer's position, estimate + A_SLIP_DS along the tangent: log-likelihood ratio (equal S)
+        # (NIS - NIS_odo) / 2, NIS capped (robust); a fix neither position explains carries no vote
+        ds = aux[A_SLIP_DS]
+        y0 = y[0] - de * ds
+        y1 = y[1] - dn * ds
+        nis_odo = y0 * (si00 * y0 + si01 * y1) + y1 * (si01 * y0 + si11 * y1)
+        if min(nis, nis_odo) <= cfg[K_GATE_GPS]:
+            cap = cfg[K_GPS_MAX_LOGLIK_NIS]
+            llr = aux[A_SLIP_LLR] + 0.5 * (min(nis, cap) - min(nis_odo, cap))
+            aux[A_SLIP_LLR] = max(llr, -cfg[K_SLIP_ARB_LLR])
+            aux[A_T_GPS] = t  # GNSS is alive and in use
         cnt[C_GPS_HELD] += 1
         return O_HELD_OFF
     if nis > cfg[K_GATE_GPS]:

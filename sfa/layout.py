@@ -71,9 +71,9 @@ A_FZ = 36  #: vertical specific force of the last IMU sample [m/s^2] (stuck-sens
 A_WX = 37  #: roll rate of the last IMU sample [rad/s] (stuck-sensor detection)
 A_WY = 38  #: pitch rate of the last IMU sample [rad/s] (stuck-sensor detection)
 A_IMU_SAME = 39  #: consecutive IMU samples bit-identical to the previous one
-A_SLIP_DS = 40  #: arc length the odometer travelled beyond the estimate during the current slip [m]
+A_SLIP_DS = 40  #: during a slip, the odometer's position minus the estimate's (A_SLIP_S_ODO - s) [m]
 A_T_ODO_SEEN = 41  #: time of the last valid odometer sample, used or not [s]
-A_IMU_FAULT_T = 42  #: time the accelerometer was last declared faulty (a slip that never ended) [s]
+A_IMU_FAULT_T = 42  #: time the accelerometer was last declared faulty (long slip, or by GNSS) [s]
 #: The gyro window: the residuals and Jacobians of consecutive IMU samples, averaged into one gyro
 #: update (docs/filter.md, "Gyro update"). The residual sum is kept relative to the current state.
 A_GY_N = 43  #: samples in the window
@@ -103,9 +103,14 @@ A_QB_SB = 62  #: [m * m/s^2]
 A_QB_VV = 63  #: [m^2/s^2]
 A_QB_VB = 64  #: [m/s * m/s^2]
 A_QB_BB = 65  #: [m^2/s^4]
+#: log-likelihood ratio, over the GNSS fixes of the current slip, of "the accelerometer is faulty" (the
+#: fixes agree with the estimate + A_SLIP_DS) against "the odometer slips" (they agree with the estimate)
+A_SLIP_LLR = 66
+A_SLIP_S_ODO = 67  #: the odometer's own position during the current slip, integrated from its declaration [m]
+A_SLIP_V_ODO = 68  #: last odometer speed along increasing arc length, scale-corrected [m/s]
 #: Scratch for the updates (no meaning between calls): P H' (two columns of NX) and the gain K (two
 #: columns of NX). Kept in aux so the compiled updates allocate nothing per measurement.
-A_WK_PHT = 66
+A_WK_PHT = 69
 A_WK_K = A_WK_PHT + 2 * NX
 NAUX = A_WK_K + 2 * NX
 
@@ -234,7 +239,8 @@ K_SLIP_BA_SIGMA = 58  #: accelerometer bias sigma added when a slip outlasts sli
 K_IMU_FAULT_HOLD = 59  #: how long a declared accelerometer fault stays reported [s]
 K_GYRO_AVG_N = 60  #: IMU samples averaged into one gyro update [samples]
 K_GYRO_AVG_MAX_S = 61  #: longest span of one gyro window [s]
-NCFG = 62
+K_SLIP_ARB_LLR = 62  #: GNSS log-likelihood ratio that decides a slip against an accelerometer fault [-]
+NCFG = 63
 
 # ---------------------------------------------------------------- measurement kinds and result codes
 M_IMU = 1

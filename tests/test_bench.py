@@ -120,7 +120,7 @@ def test_c_reference_agrees_with_the_compiled_kernels(tmp_path):
 
 
 def test_c_reference_agrees_through_sensor_faults(tmp_path):
-    """Slip (rewind), a 0.3 m/s^2 accelerometer bias step (a slip that outlasts slip_max_s: re-anchor,
+    """Slip (rewind), a 0.3 m/s^2 accelerometer bias step (a slip that GNSS arbitrates: re-anchor,
     accelerometer declared faulty) and a stuck IMU: the fault-handling branches of the C
     transliteration take the same path as numba."""
     mod = _cref()
@@ -144,6 +144,10 @@ def test_c_reference_agrees_through_sensor_faults(tmp_path):
     np.testing.assert_array_equal(sa[3], sb[3])
     np.testing.assert_array_equal(fb, fa)
     assert np.any(ia[:, 2] & L.R_IMU_STUCK) and np.any(ia[:, 2] & L.R_IMU_FAULT)
+    # the bias step is told from a slip by GNSS arbitration (fixes held off while they vote), well
+    # before slip_max_s: that branch, too, runs in both
+    assert cnt[L.C_GPS_HELD] > 0
+    assert fa[np.flatnonzero(ia[:, 2] & L.R_IMU_FAULT)[0], 0] - t0 < 45.0 + 10.0
 
 
 def test_c_reference_build_reports_a_missing_compiler(tmp_path, monkeypatch):

@@ -438,6 +438,8 @@ static long status_of(const double *x, const double *P, const double *aux, const
     if (t - aux[A_IMU_FAULT_T] <= cfg[K_IMU_FAULT_HOLD]) bits |= R_IMU_FAULT;
     double var = pending_var_s(P, aux);
     double sigma = var > 0.0 ? sqrt(var) : 0.0;
+    if (aux[A_SLIP] != 0.0 && aux[A_SLIP_LLR] > -cfg[K_SLIP_ARB_LLR])
+        sigma += fabs(aux[A_SLIP_DS]) / cfg[K_Z_INTERVAL];
     if (sigma > cfg[K_LOST_SIGMA]) bits |= R_SIGMA_LOST;
     else if (sigma > cfg[K_DEGRADED_SIGMA]) bits |= R_SIGMA_HIGH;
     *bits_out = bits;
@@ -578,6 +580,9 @@ static long step_init(double *x, double *P, double *aux, long *cnt, double *mem,
     aux[A_IMU_SAME] = 0.0;
     aux[A_IMU_FAULT_T] = -INFINITY;
     aux[A_SLIP_DS] = 0.0;
+    aux[A_SLIP_LLR] = 0.0;
+    aux[A_SLIP_S_ODO] = s;
+    aux[A_SLIP_V_ODO] = x[V];
     aux[A_T_ODO_SEEN] = t;
     aux[A_GY_N] = 0.0;
     mem_reset(mem);
@@ -726,12 +731,15 @@ static long step_odo(double *x, double *P, double *aux, long *cnt, double *mem, 
     double nis;
     double sm = innovation1(P, aux, V, h_v, KO, h_ko, -1, 0.0, -1, 0.0, -1, 0.0, r, y, &nis);
     aux[A_LAST_NIS_ODO] = nis;
+    double v_odo = speed / h_v;
     if (aux[A_SLIP] != 0.0) {
         double dt = t - aux[A_T_ODO_SEEN];
         dt = dt > 0.0 ? dt : 0.0;
         dt = dt < 1.0 ? dt : 1.0;
-        aux[A_SLIP_DS] += y / h_v * dt;
+        aux[A_SLIP_S_ODO] += 0.5 * (aux[A_SLIP_V_ODO] + v_odo) * dt;
+        aux[A_SLIP_DS] = aux[A_SLIP_S_ODO] - x[S];
     }
+    aux[A_SLIP_V_ODO] = v_odo;
     aux[A_T_ODO_SEEN] = t;
     int imu_timely = (t - aux[A_T_IMU]) <= cfg[K_IMU_TIMEOUT];
     double fxv = aux[A_FX_VAR] > 0.0 ? aux[A_FX_VAR] : 0.0;
@@ -739,27 +747,44 @@ static long step_odo(double *x, double *P, double *aux, long *cnt, double *mem, 
     aux[A_STILL] = still ? 1.0 : 0.0;
     int use = 0;
     long outcome = O_GATED;
-    if (nis > cfg[K_GATE_ODO]) {
+    int by_gnss = aux[A_SLIP] != 0.0 && aux[A_SLIP_LLR] >= cfg[K_SLIP_ARB_LLR];
+    if (by_gnss || (nis > cfg[K_GATE_ODO] && aux[A_SLIP] != 0.0 && t - aux[A_SLIP_T0] > cfg[K_SLIP_MAX_S])) {
+        PIJ(P, V, V) += y * y;
+        PIJ(P, BA, BA) += sq(cfg[K_SLIP_BA_SIGMA]);
+        double vabs = fabs(x[V]) > 1.0 ? fabs(x[V]) : 1.0;
+        PIJ(P, SG, SG) += sq(y / vabs);
+        if (by_gnss) {
+            gyro_window_shift(aux, aux[A_SLIP_DS], 0.0, 0.0, 0.0, 0.0);
+            x[S] += aux[A_SLIP_DS];
+            for (int i = 0; i < NX; i++) {
+                if (i != S) {
+                    PIJ(P, S, i) = 0.0;
+                    PIJ(P, i, S) = 0.0;
+                }
+            }
+        } else {
+            PIJ(P, S, S) += sq(aux[A_SLIP_DS]);
+        }
+        aux[A_IMU_FAULT_T] = t;
+        cnt[C_IMU_FAULT] += 1;
+        sm = innovation1(P, aux, V, h_v, KO, h_ko, -1, 0.0, -1, 0.0, -1, 0.0, r, y, &nis);
+        use = 1;
+        aux[A_SLIP] = 0.0;
+        aux[A_SLIP_BAD] = 0.0;
+        cnt[C_ODO_REANCHOR] += 1;
+    } else if (nis > cfg[K_GATE_ODO]) {
         aux[A_SLIP_BAD] += 1.0;
         aux[A_SLIP_GOOD] = 0.0;
         cnt[C_ODO_GATED] += 1;
         if (aux[A_SLIP] == 0.0 && aux[A_SLIP_BAD] >= cfg[K_SLIP_CONFIRM_N]) {
             aux[A_SLIP] = 1.0;
             aux[A_SLIP_T0] = t;
+            aux[A_SLIP_LLR] = 0.0;
             cnt[C_SLIP] += 1;
+            double s_odo = x[S];
             rewind_imu_only(x, P, aux, cnt, cfg, ts, tg, nv, mem, 0.0);
-            aux[A_SLIP_DS] = 0.0;
-        } else if (aux[A_SLIP] != 0.0 && t - aux[A_SLIP_T0] > cfg[K_SLIP_MAX_S]) {
-            PIJ(P, V, V) += y * y;
-            PIJ(P, BA, BA) += sq(cfg[K_SLIP_BA_SIGMA]);
-            PIJ(P, S, S) += sq(aux[A_SLIP_DS]);
-            aux[A_IMU_FAULT_T] = t;
-            cnt[C_IMU_FAULT] += 1;
-            sm = innovation1(P, aux, V, h_v, KO, h_ko, -1, 0.0, -1, 0.0, -1, 0.0, r, y, &nis);
-            use = 1;
-            aux[A_SLIP] = 0.0;
-            aux[A_SLIP_BAD] = 0.0;
-            cnt[C_ODO_REANCHOR] += 1;
+            aux[A_SLIP_S_ODO] = s_odo;
+            aux[A_SLIP_DS] = s_odo - x[S];
         }
     } else if (aux[A_SLIP] != 0.0) {
         aux[A_SLIP_GOOD] += 1.0;
@@ -870,6 +895,21 @@ static long step_gps(double *x, double *P, double *aux, long *cnt, const double 
     aux[A_LAST_NIS_GPS] = in.nis;
     double along = y[0] * ue + y[1] * un;
     if (t < aux[A_GPS_HOLD]) {
+        cnt[C_GPS_HELD] += 1;
+        return O_HELD_OFF;
+    }
+    if (aux[A_SLIP] != 0.0 && aux[A_SLIP_LLR] > -cfg[K_SLIP_ARB_LLR]) {
+        double ds = aux[A_SLIP_DS];
+        double y0 = y[0] - de * ds, y1 = y[1] - dn * ds;
+        double nis_odo = y0 * (in.si00 * y0 + in.si01 * y1) + y1 * (in.si01 * y0 + in.si11 * y1);
+        double nmin = nis_odo < in.nis ? nis_odo : in.nis; /* Python's min(nis, nis_odo) */
+        if (nmin <= cfg[K_GATE_GPS]) {
+            double cap = cfg[K_GPS_MAX_LOGLIK_NIS];
+            double a = cap < in.nis ? cap : in.nis, b = cap < nis_odo ? cap : nis_odo;
+            double llr = aux[A_SLIP_LLR] + 0.5 * (a - b);
+            aux[A_SLIP_LLR] = -cfg[K_SLIP_ARB_LLR] > llr ? -cfg[K_SLIP_ARB_LLR] : llr;
+            aux[A_T_GPS] = t;
+        }
         cnt[C_GPS_HELD] += 1;
         return O_HELD_OFF;
     }
