@@ -1089,7 +1089,7 @@ def step_odo(x, P, aux, cnt, mem, cfg, ts, tg, t, speed, sigma):
     y = speed - d * x[V] * (1.0 + x[KO])  # y = z - d v (1 + k_o)
     sm, nis = innovation1(P, aux, V, h_v, KO, h_ko, -1, 0.0, -1, 0.0, -1, 0.0, r, y)
     aux[A_LAST_NIS_ODO] = nis
-    v_odo = speed / h_v  # the odometer's speed along increasing arc length, scale-corrected
+    v_odo = speed / h_v if h_v != 0.0 else x[V]  # odometer speed along increasing s, scale-corrected
     if aux[A_SLIP] != 0.0:
         # the odometer's own position since the declaration (trapezoid) and its distance beyond the
         # estimate (whatever moved the estimate meanwhile: prediction, gyro or GNSS updates)

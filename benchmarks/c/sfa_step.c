@@ -731,7 +731,7 @@ static long step_odo(double *x, double *P, double *aux, long *cnt, double *mem, 
     double nis;
     double sm = innovation1(P, aux, V, h_v, KO, h_ko, -1, 0.0, -1, 0.0, -1, 0.0, r, y, &nis);
     aux[A_LAST_NIS_ODO] = nis;
-    double v_odo = speed / h_v;
+    double v_odo = h_v != 0.0 ? speed / h_v : x[V];
     if (aux[A_SLIP] != 0.0) {
         double dt = t - aux[A_T_ODO_SEEN];
         dt = dt > 0.0 ? dt : 0.0;
