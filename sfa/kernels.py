@@ -40,7 +40,6 @@ from sfa.layout import (
     A_GY_N,
     A_GY_RC,
     A_GY_T0,
-    A_GY_TL,
     A_GY_Y,
     A_GYRO_OK,
     A_GZ,
@@ -1028,7 +1027,6 @@ def step_imu(x, P, aux, cnt, mem, cfg, ts, tg, tk, t, fx, fy, fz, wx, wy, wz):
             aux[A_GY_RC] = 0.0
         # h = [c (1 + s_g) v dk/ds, c (1 + s_g) k, .., 1 (b_g), .., c v k (s_g), gx (m_x)], summed
         aux[A_GY_N] += 1.0
-        aux[A_GY_TL] = t
         aux[A_GY_Y] += y
         aux[A_GY_HS] += g1 * x[V] * dk_ds
         aux[A_GY_HV] += g1 * k

@@ -78,39 +78,38 @@ A_IMU_FAULT_T = 42  #: time the accelerometer was last declared faulty (long sli
 #: update (docs/filter.md, "Gyro update"). The residual sum is kept relative to the current state.
 A_GY_N = 43  #: samples in the window
 A_GY_T0 = 44  #: time of the window's first sample [s]
-A_GY_TL = 45  #: time of the window's last sample [s]
-A_GY_Y = 46  #: sum of the residuals gz - h(x) [rad/s]
-A_GY_HS = 47  #: sum of dh/ds [rad/s/m]
-A_GY_HV = 48  #: sum of dh/dv [1/m]
-A_GY_HSG = 49  #: sum of dh/ds_g [rad/s]
-A_GY_HMX = 50  #: sum of dh/dm_x (the roll rates) [rad/s]
-A_GY_RC = 51  #: sum of the curvature-model variances (v sigma_k)^2 [rad^2/s^2]
-A_SEG = 52  #: segment index of the last geometry lookup (a hint: every lookup checks it)
-#: The covariance prediction pending since P was last brought up to the state time (``cov_sync``):
+A_GY_Y = 45  #: sum of the residuals gz - h(x) [rad/s]
+A_GY_HS = 46  #: sum of dh/ds [rad/s/m]
+A_GY_HV = 47  #: sum of dh/dv [1/m]
+A_GY_HSG = 48  #: sum of dh/ds_g [rad/s]
+A_GY_HMX = 49  #: sum of dh/dm_x (the roll rates) [rad/s]
+A_GY_RC = 50  #: sum of the curvature-model variances (v sigma_k)^2 [rad^2/s^2]
+A_SEG = 51  #: segment index of the last geometry lookup (a hint: every lookup checks it)
+#: The covariance prediction pending since P was last brought up to the state time (``sync_block``):
 #: the mean is predicted at every step, P once per block of steps with the block's transition
 #: F_B = I + (these coefficients) and noise Q_B (docs/filter.md, "Prediction").
-A_PB_H = 53  #: length of the pending block [s] (0: P is current)
-A_PB_SB = 54  #: F_B[S, BA] [s^2]
-A_PB_VB = 55  #: F_B[V, BA] [s]
-A_PB_SM = 56  #: F_B[S, MY] [m]
-A_PB_VM = 57  #: F_B[V, MY] [m/s]
-A_PB_SF = 58  #: F_B[S, SF] [m]
-A_PB_VF = 59  #: F_B[V, SF] [m/s]
+A_PB_H = 52  #: length of the pending block [s] (0: P is current)
+A_PB_SB = 53  #: F_B[S, BA] [s^2]
+A_PB_VB = 54  #: F_B[V, BA] [s]
+A_PB_SM = 55  #: F_B[S, MY] [m]
+A_PB_VM = 56  #: F_B[V, MY] [m/s]
+A_PB_SF = 57  #: F_B[S, SF] [m]
+A_PB_VF = 58  #: F_B[V, SF] [m/s]
 #: the block's process noise in the (S, V, BA) block, accumulated step by step as Q_B = F_h Q_B F_h' + Q_h
-A_QB_SS = 60  #: [m^2]
-A_QB_SV = 61  #: [m^2/s]
-A_QB_SB = 62  #: [m * m/s^2]
-A_QB_VV = 63  #: [m^2/s^2]
-A_QB_VB = 64  #: [m/s * m/s^2]
-A_QB_BB = 65  #: [m^2/s^4]
+A_QB_SS = 59  #: [m^2]
+A_QB_SV = 60  #: [m^2/s]
+A_QB_SB = 61  #: [m * m/s^2]
+A_QB_VV = 62  #: [m^2/s^2]
+A_QB_VB = 63  #: [m/s * m/s^2]
+A_QB_BB = 64  #: [m^2/s^4]
 #: log-likelihood ratio, over the GNSS fixes of the current slip, of "the accelerometer is faulty" (the
 #: fixes agree with the estimate + A_SLIP_DS) against "the odometer slips" (they agree with the estimate)
-A_SLIP_LLR = 66
-A_SLIP_S_ODO = 67  #: the odometer's own position during the current slip, integrated from its declaration [m]
-A_SLIP_V_ODO = 68  #: last odometer speed along increasing arc length, scale-corrected [m/s]
+A_SLIP_LLR = 65
+A_SLIP_S_ODO = 66  #: the odometer's own position during the current slip, integrated from its declaration [m]
+A_SLIP_V_ODO = 67  #: last odometer speed along increasing arc length, scale-corrected [m/s]
 #: Scratch for the updates (no meaning between calls): P H' (two columns of NX) and the gain K (two
 #: columns of NX). Kept in aux so the compiled updates allocate nothing per measurement.
-A_WK_PHT = 69
+A_WK_PHT = 68
 A_WK_K = A_WK_PHT + 2 * NX
 NAUX = A_WK_K + 2 * NX
 

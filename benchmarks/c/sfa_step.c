@@ -691,7 +691,6 @@ static long step_imu(double *x, double *P, double *aux, long *cnt, double *mem, 
             aux[A_GY_RC] = 0.0;
         }
         aux[A_GY_N] += 1.0;
-        aux[A_GY_TL] = t;
         aux[A_GY_Y] += y;
         aux[A_GY_HS] += g1 * x[V] * dk_ds;
         aux[A_GY_HV] += g1 * k;
