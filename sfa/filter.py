@@ -492,9 +492,33 @@ class TrackFilter:
                 g.aux[L.A_GY_N] = 0.0
             self._prune()
 
+    def _same_track(self, g: _Hypothesis, h: _Hypothesis) -> bool:
+        """True when h duplicates g: the same line, sense of travel and place (within 1 m); or another
+        line that runs on g's track: the same place and way of travel in the plane now and 2 x the
+        junction window ahead (several routes of a network share one track: hypotheses on them cannot
+        be told apart until the lines part, where that junction spawns them again). A branch just
+        spawned is not a duplicate: 2 x the window ahead reaches at least one window past its junction,
+        where the lines have parted."""
+        if g.line.line_id == h.line.line_id:
+            return g.direction == h.direction and abs(g.x[L.S] - h.x[L.S]) < 1.0
+        ahead = 2.0 * self._config.junction_window_m
+        pts = []
+        for q in (g, h):
+            s0 = float(q.x[L.S])
+            s1 = s0 + q.direction * ahead
+            ln = q.line
+            if not (ln.s_m[0] <= s0 <= ln.s_m[-1] and ln.s_m[0] <= s1 <= ln.s_m[-1]):
+                return False
+            e0, n0, de, dn = K.geom_at(ln.s_m, ln.east_m, ln.north_m, s0)
+            e1, n1, _, _ = K.geom_at(ln.s_m, ln.east_m, ln.north_m, s1)
+            pts.append((e0, n0, e1, n1, q.direction * de, q.direction * dn))
+        (ga, gb, gc, gd, gu, gv), (ha, hb, hc, hd, hu, hv) = pts
+        return (math.hypot(ga - ha, gb - hb) < 1.0 and math.hypot(gc - hc, gd - hd) < 1.0
+                and gu * hu + gv * hv > 0.0)
+
     def _prune(self) -> None:
         """Drop hypotheses whose GNSS log-likelihood trails the best by more than prune_log_ratio,
-        duplicates (same line, within 1 m) and the excess over max_hypotheses."""
+        duplicates (``_same_track``) and the excess over max_hypotheses."""
         reported = self._hyps[self._reported]
         best = max(float(h.aux[L.A_LOGLIK]) for h in self._hyps)
         keep: list[_Hypothesis] = []
@@ -506,8 +530,7 @@ class TrackFilter:
             if h.x[L.S] > h.line.length_m + margin or h.x[L.S] < -margin:
                 if len(order) > 1:
                     continue  # ran off the end of its line while others remain
-            if any(g.line.line_id == h.line.line_id and g.direction == h.direction
-                   and abs(g.x[L.S] - h.x[L.S]) < 1.0 for g in keep):
+            if any(self._same_track(g, h) for g in keep):
                 continue
             keep.append(h)
         if not keep:

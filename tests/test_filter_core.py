@@ -237,3 +237,28 @@ def test_reading_the_estimate_never_changes_the_arithmetic(db):
     # the batch path: the same kernels and block boundaries (compiled inside its loop: 1e-9, as documented)
     assert res.arc_length_m[-1] == pytest.approx(xa[0], abs=1e-9)
     np.testing.assert_allclose(res.P, pa, rtol=1e-9, atol=1e-15)
+
+
+def test_hypotheses_on_routes_sharing_one_track_are_duplicates():
+    """On the Jena network several routes share a track with the same arc length: hypotheses on them
+    cannot be told apart (their likelihoods stay equal), so _prune keeps one; a branch that parts
+    within two junction windows is not a duplicate (the geometry below is the bundled OSM data)."""
+    from interface_modules.scenario import load_scenario
+    from interface_modules.tracks import database_path
+    from sfa import layout as L
+    from sfa.filter import _Hypothesis
+
+    with TrackDatabase.open(database_path(load_scenario("tram-urban"))) as jena:
+        f = TrackFilter(jena, filter_config_for())
+
+        def hyp(line_id, s_m, direction=1.0):
+            h = _Hypothesis(f._line_arrays(line_id))
+            h.x[L.S] = s_m
+            h.aux[L.A_DIR] = direction
+            return h
+
+        shared = (hyp(2, 2418.0), hyp(10, 2418.0), hyp(17, 2418.0))  # one track, measured 2026-11-22
+        assert f._same_track(shared[0], shared[1]) and f._same_track(shared[0], shared[2])
+        assert not f._same_track(shared[0], hyp(10, 2418.0, -1.0))  # the other way along it
+        assert not f._same_track(hyp(2, 2351.4), hyp(1, 2350.8))  # line 1 parts from line 2 ahead
+        assert not f._same_track(shared[0], hyp(2, 2420.0))  # same line: 2 m apart
