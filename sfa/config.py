@@ -51,7 +51,7 @@ class FilterConfig:
     #: consecutive IMU samples whose gyro residuals are averaged into one gyro update (R = sigma^2 / n
     #: for the white noise; 1: an update per sample) [samples]
     gyro_average_samples: int = 5
-    gyro_average_max_s: float = 0.1  #: longest time a gyro window spans; older samples are dropped [s]
+    gyro_average_max_s: float = 0.1  #: longest time a gyro window spans; a longer one is applied as it is [s]
     # --- odometer
     odo_scale_rw_per_rts: float = 1.0e-5  #: odometer scale-factor random walk [1/sqrt(s)]
     init_sigma_odo_scale: float = 0.01  #: initial odometer scale-factor sigma [fraction]

@@ -92,7 +92,6 @@ class _Hypothesis:
         h = self.clone(line, keys)
         h.x[L.S] = s_m
         h.mem[:] = 0.0  # snapshots are on the other line: not reusable
-        h.aux[L.A_GY_N] = 0.0  # the gyro window's residuals refer to the other line's curvature
         if flip:
             h.x[L.V] = -h.x[L.V]
             h.aux[L.A_DIR] = -h.aux[L.A_DIR]
@@ -107,7 +106,6 @@ class _Hypothesis:
         self.sync(cfg)
         h = self.clone()
         h.mem[:] = 0.0
-        h.aux[L.A_GY_N] = 0.0  # (at standstill the gyro window is empty anyway)
         h.x[L.V] = -h.x[L.V]
         h.aux[L.A_DIR] = -h.aux[L.A_DIR]
         h.P[L.V, :] = -h.P[L.V, :]
@@ -203,7 +201,7 @@ class TrackFilter:
         code, bits, sigma = K.status_of(h.x, h.P, h.aux, self._cfg, t_eval)
         s = float(h.x[L.S])
         lat, lon = self._latlon(h.line, s)
-        _, pv = K.pending_var_sv(h.P, h.aux)
+        pv = K.pending_var_v(h.P, h.aux)
         return Estimate(
             epoch_s=t,
             arc_length_m=s,
@@ -453,8 +451,7 @@ class TrackFilter:
             new.append(h.mirrored(self._cfg))
         if new:
             self._hyps.extend(new)
-            for g in self._hyps:  # gyro windows aligned: the likelihood compares hypotheses at one sample
-                g.aux[L.A_GY_N] = 0.0
+            self._empty_gyro_windows()
             self._prune()
 
     def _spawn_branches(self) -> None:
@@ -488,9 +485,15 @@ class TrackFilter:
                     new.append(h.copy_to(other_line, s_other - (s - s_here), h.spawned, self._cfg, flip=True))
         if new:
             self._hyps.extend(new)
-            for g in self._hyps:  # gyro windows aligned: the likelihood compares hypotheses at one sample
-                g.aux[L.A_GY_N] = 0.0
+            self._empty_gyro_windows()
             self._prune()
+
+    def _empty_gyro_windows(self) -> None:
+        """After new hypotheses: every gyro window starts empty, so that all close at the same sample (the
+        likelihood compares their NIS there) and none of a copy's residuals, taken on its parent's line
+        or sense of travel, is applied to it."""
+        for g in self._hyps:
+            g.aux[L.A_GY_N] = 0.0
 
     def _same_track(self, g: _Hypothesis, h: _Hypothesis) -> bool:
         """True when h duplicates g: the same line, sense of travel and place (within 1 m); or another

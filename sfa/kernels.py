@@ -499,26 +499,34 @@ def block_clear(aux):
 
 
 @njit(cache=True, _nrt=False, error_model="numpy")
-def pending_var_sv(P, aux):
-    """Variances of s and v of the synced P, without changing anything: (F_B P F_B' + Q_B)[S,S] and [V,V]."""
+def pending_var_s(P, aux):
+    """Variance of s of the synced P, without changing anything: (F_B P F_B' + Q_B)[S,S] (status_of reads
+    it after every measurement)."""
     hb = aux[A_PB_H]
     if hb == 0.0:
-        return P[S, S], P[V, V]
-    # f = row S of F_B on (S, V, BA, MY, SF) = (1, H, sb, sm, sf); g = row V = (0, 1, vb, vm, vf)
+        return P[S, S]
+    # f = row S of F_B on (S, V, BA, MY, SF) = (1, H, sb, sm, sf)
     sb, sm_, sf = aux[A_PB_SB], aux[A_PB_SM], aux[A_PB_SF]
-    vb, vm, vf = aux[A_PB_VB], aux[A_PB_VM], aux[A_PB_VF]
     ps = P[S, S] + hb * P[V, S] + sb * P[BA, S] + sm_ * P[MY, S] + sf * P[SF, S]  # (f P)_S
     pv = P[S, V] + hb * P[V, V] + sb * P[BA, V] + sm_ * P[MY, V] + sf * P[SF, V]  # (f P)_V
     pb = P[S, BA] + hb * P[V, BA] + sb * P[BA, BA] + sm_ * P[MY, BA] + sf * P[SF, BA]
     pm = P[S, MY] + hb * P[V, MY] + sb * P[BA, MY] + sm_ * P[MY, MY] + sf * P[SF, MY]
     pf = P[S, SF] + hb * P[V, SF] + sb * P[BA, SF] + sm_ * P[MY, SF] + sf * P[SF, SF]
-    pss = ps + hb * pv + sb * pb + sm_ * pm + sf * pf + aux[A_QB_SS]  # f P f' + Q_B[S,S]
+    return ps + hb * pv + sb * pb + sm_ * pm + sf * pf + aux[A_QB_SS]  # f P f' + Q_B[S,S]
+
+
+@njit(cache=True, _nrt=False, error_model="numpy")
+def pending_var_v(P, aux):
+    """Variance of v of the synced P, without changing anything: (F_B P F_B' + Q_B)[V,V]."""
+    if aux[A_PB_H] == 0.0:
+        return P[V, V]
+    # g = row V of F_B on (V, BA, MY, SF) = (1, vb, vm, vf)
+    vb, vm, vf = aux[A_PB_VB], aux[A_PB_VM], aux[A_PB_VF]
     gv = P[V, V] + vb * P[BA, V] + vm * P[MY, V] + vf * P[SF, V]  # (g P)_V
     gb = P[V, BA] + vb * P[BA, BA] + vm * P[MY, BA] + vf * P[SF, BA]
     gm = P[V, MY] + vb * P[BA, MY] + vm * P[MY, MY] + vf * P[SF, MY]
     gf = P[V, SF] + vb * P[BA, SF] + vm * P[MY, SF] + vf * P[SF, SF]
-    pvv = gv + vb * gb + vm * gm + vf * gf + aux[A_QB_VV]  # g P g' + Q_B[V,V]
-    return pss, pvv
+    return gv + vb * gb + vm * gm + vf * gf + aux[A_QB_VV]  # g P g' + Q_B[V,V]
 
 
 @njit(cache=True, _nrt=False, error_model="numpy")
@@ -538,9 +546,9 @@ def predict_to(x, P, aux, cnt, cfg, ts, tg, t):
     for _ in range(n):
         _predict_step(x, P, aux, cfg, ts, tg, h, imu_ok)
     aux[A_T_STATE] = t
-    # F P F' + Q keeps a positive definite P positive definite: every update runs the Cholesky check
-    # (the gyro's the diagonal floor); after a long prediction (a gap of more than 10 steps) P is
-    # brought up to date and checked here
+    # F P F' + Q keeps a positive definite P positive definite: the Cholesky check runs after GNSS
+    # updates, before snapshots and at init (scalar updates floor the diagonal); after a long
+    # prediction (a gap of more than 10 steps) P is brought up to date and checked here
     if n > 10:
         sync_block(x, P, aux, cfg, cnt)
         condition_cov(P, cfg, cnt)
@@ -741,7 +749,7 @@ def status_of(x, P, aux, cfg, t):
         bits |= R_IMU_STUCK
     if t - aux[A_IMU_FAULT_T] <= cfg[K_IMU_FAULT_HOLD]:
         bits |= R_IMU_FAULT
-    var, _ = pending_var_sv(P, aux)
+    var = pending_var_s(P, aux)
     sigma = math.sqrt(var) if var > 0.0 else 0.0
     if aux[A_SLIP] != 0.0 and aux[A_SLIP_LLR] > -cfg[K_SLIP_ARB_LLR]:
         # slip or accelerometer fault not yet told apart by GNSS: the interval also covers the

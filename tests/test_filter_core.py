@@ -225,7 +225,7 @@ def test_reading_the_estimate_never_changes_the_arithmetic(db):
         x_now, p_now = read.state()  # a synced copy
         if h.aux[L.A_PB_H] > 0.0:
             pending_seen += 1
-            pss, pvv = K.pending_var_sv(h.P, h.aux)
+            pss, pvv = K.pending_var_s(h.P, h.aux), K.pending_var_v(h.P, h.aux)
             assert pss == pytest.approx(p_now[0, 0], rel=1e-12)
             assert pvv == pytest.approx(p_now[1, 1], rel=1e-12)
         assert est.sigma_s_m == pytest.approx(math.sqrt(p_now[0, 0]), rel=1e-12)

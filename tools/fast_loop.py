@@ -179,14 +179,13 @@ def _spawn_reversals(order, ns, X, PP, AUX, CNT, MEM, cfg):
         MEM[free, :] = 0.0
         X[free, L.V] = -X[free, L.V]
         AUX[free, L.A_DIR] = -AUX[free, L.A_DIR]
-        AUX[free, L.A_GY_N] = 0.0  # as TrackFilter's _Hypothesis.mirrored
         for q in range(L.NX):
             PP[free, L.V, q] = -PP[free, L.V, q]
         for q in range(L.NX):
             PP[free, q, L.V] = -PP[free, q, L.V]
         order[total] = free
         total += 1
-    if total > nh:  # as TrackFilter._spawn_reversals: gyro windows aligned across the hypotheses
+    if total > nh:  # as TrackFilter._empty_gyro_windows: every window (the copies' too) starts empty
         for q in range(total):
             AUX[order[q], L.A_GY_N] = 0.0
     ns[0] = total

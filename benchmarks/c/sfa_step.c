@@ -244,7 +244,7 @@ static void sync_block(double *x, double *P, double *aux, const double *cfg, lon
     if (symmetrise_floor(P, cfg)) cnt[C_COV_REPAIR] += 1;
 }
 
-/* (F_B P F_B' + Q_B)[S, S] without changing anything (pending_var_sv's first value: all status_of reads) */
+/* (F_B P F_B' + Q_B)[S, S] without changing anything (sfa.kernels.pending_var_s) */
 static double pending_var_s(const double *P, const double *aux) {
     double hb = aux[A_PB_H];
     if (hb == 0.0) return PIJ(P, S, S);
