@@ -109,6 +109,11 @@ class FilterConfig:
     max_time_jump_s: float = 10.0  #: a measurement further ahead of the state needs confirming [s]
     # --- interval and status
     confidence: float = 0.95  #: two-sided confidence of the arc-length interval [probability]
+    #: while a sensor fault is declared (GNSS step or ramp, odometer slip, accelerometer fault, IMU
+    #: stuck) the reported sigma is multiplied by z(fault_confidence) / z(confidence), so the reported
+    #: interval spans the filter's own fault_confidence interval: a fault is detected late and what it
+    #: did before detection is not in the covariance. Equal to confidence: no widening [probability]
+    fault_confidence: float = 0.99
     degraded_sigma_m: float = 5.0  #: sigma_s above which the status is DEGRADED [m]
     lost_sigma_m: float = 100.0  #: sigma_s above which the status is LOST [m]
     min_variance: float = 1e-12  #: smallest variance kept on the covariance diagonal [unit^2]
@@ -134,7 +139,8 @@ class FilterConfig:
                 raise FilterConfigError(f"{f.name} must be a finite number, got {value!r}")
             if f.name != "min_variance" and value < 0:
                 raise FilterConfigError(f"{f.name} must be >= 0, got {value!r}")
-        for name in ("gate_prob_odo", "gate_prob_gps", "gate_prob_gyro", "gate_prob_zupt", "confidence"):
+        for name in ("gate_prob_odo", "gate_prob_gps", "gate_prob_gyro", "gate_prob_zupt", "confidence",
+                     "fault_confidence"):
             p = getattr(self, name)
             if not 0.0 < p < 1.0:
                 raise FilterConfigError(f"{name} must be a probability in (0, 1), got {p!r}")
@@ -146,6 +152,9 @@ class FilterConfig:
         if self.gyro_average_samples < 1 or self.gyro_average_samples != int(self.gyro_average_samples):
             raise FilterConfigError(
                 f"gyro_average_samples must be an integer >= 1, got {self.gyro_average_samples!r}")
+        if self.fault_confidence < self.confidence:
+            raise FilterConfigError(
+                f"fault_confidence ({self.fault_confidence!r}) must be >= confidence ({self.confidence!r})")
         if self.max_hypotheses < 1:
             raise FilterConfigError("max_hypotheses must be >= 1")
 
@@ -162,11 +171,12 @@ class FilterConfig:
 
         return float(chi2.ppf(probability, dof))
 
-    def interval_z(self) -> float:
-        """Two-sided standard-normal quantile of ``confidence`` (1.96 for 95 %)."""
+    def interval_z(self, confidence: float | None = None) -> float:
+        """Two-sided standard-normal quantile of ``confidence`` (default: the config's; 1.96 for 95 %)."""
         from scipy.stats import norm
 
-        return float(norm.ppf(0.5 + 0.5 * self.confidence))
+        p = self.confidence if confidence is None else confidence
+        return float(norm.ppf(0.5 + 0.5 * p))
 
     def to_array(self):
         """The flat float64 vector the compiled kernels read (slots named in ``sfa.layout``)."""
@@ -214,6 +224,7 @@ class FilterConfig:
         c[L.K_GYRO_SIGMA] = self.gyro_sigma_radps
         c[L.K_GYRO_MIN_SPEED] = self.gyro_min_speed_mps
         c[L.K_Z_INTERVAL] = self.interval_z()
+        c[L.K_FAULT_SIGMA_SCALE] = self.interval_z(self.fault_confidence) / self.interval_z()
         c[L.K_DEGRADED_SIGMA] = self.degraded_sigma_m
         c[L.K_LOST_SIGMA] = self.lost_sigma_m
         c[L.K_P_MIN_VAR] = self.min_variance

@@ -187,6 +187,8 @@ from sfa.layout import (
     K_TRACK_LAT,
     K_USE_GYRO,
     K_Z_INTERVAL,
+    K_FAULT_SIGMA_SCALE,
+    FAULT_REASONS,
     K_ZUPT_SIGMA,
     KO,
     MEM_A,
@@ -755,6 +757,9 @@ def status_of(x, P, aux, cfg, t):
         # slip or accelerometer fault not yet told apart by GNSS: the interval also covers the
         # odometer's position, estimate + A_SLIP_DS (half-width z sigma + |A_SLIP_DS|)
         sigma += abs(aux[A_SLIP_DS]) / cfg[K_Z_INTERVAL]
+    if (bits & FAULT_REASONS) != 0:
+        # a declared fault: widen to the fault_confidence interval (its effect before detection is not in P)
+        sigma *= cfg[K_FAULT_SIGMA_SCALE]
     if sigma > cfg[K_LOST_SIGMA]:
         bits |= R_SIGMA_LOST
     elif sigma > cfg[K_DEGRADED_SIGMA]:

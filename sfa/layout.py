@@ -239,7 +239,9 @@ K_IMU_FAULT_HOLD = 59  #: how long a declared accelerometer fault stays reported
 K_GYRO_AVG_N = 60  #: IMU samples averaged into one gyro update [samples]
 K_GYRO_AVG_MAX_S = 61  #: longest span of one gyro window [s]
 K_SLIP_ARB_LLR = 62  #: GNSS log-likelihood ratio that decides a slip against an accelerometer fault [-]
-NCFG = 63
+#: reported sigma factor while a sensor fault is declared: z(fault_confidence) / z(confidence) [-]
+K_FAULT_SIGMA_SCALE = 63
+NCFG = 64
 
 # ---------------------------------------------------------------- measurement kinds and result codes
 M_IMU = 1
@@ -293,6 +295,9 @@ REASON_NAMES = {
     R_IMU_STUCK: "imu_stuck",
     R_IMU_FAULT: "imu_fault",
 }
+
+#: declared sensor faults: while any is set the reported sigma is widened by K_FAULT_SIGMA_SCALE
+FAULT_REASONS = R_SLIP | R_GNSS_STEP | R_GNSS_RAMP | R_IMU_STUCK | R_IMU_FAULT
 
 #: reasons that are informative only (do not degrade the status)
 INFO_REASONS = R_STANDSTILL

@@ -12,6 +12,7 @@ import pytest
 
 from interface_modules.presets import GPS_PRESETS, IMU_PRESETS, ODOMETER_PRESETS
 from sfa import batch
+from sfa import layout as L
 from sfa.config import FilterConfig
 from sfa.errors import FilterConfigError, FilterStateError, MeasurementTypeError
 from sfa.filter import TrackFilter
@@ -40,6 +41,13 @@ def test_config_validation_and_gate_units():
     assert cfg.interval_z() == pytest.approx(1.959964, abs=1e-6)
     with pytest.raises(FilterConfigError, match="gate_prob_gps"):
         FilterConfig(gate_prob_gps=1.0)
+    # the fault interval: z(0.99) / z(0.95) in the compiled config; never narrower than the nominal one
+    assert FilterConfig().to_array()[L.K_FAULT_SIGMA_SCALE] == pytest.approx(2.575829 / 1.959964, abs=1e-6)
+    assert FilterConfig(fault_confidence=0.95).to_array()[L.K_FAULT_SIGMA_SCALE] == 1.0
+    with pytest.raises(FilterConfigError, match="fault_confidence"):
+        FilterConfig(fault_confidence=0.9)
+    with pytest.raises(FilterConfigError, match="fault_confidence"):
+        FilterConfig(fault_confidence=1.0)
     with pytest.raises(FilterConfigError, match="gps_white_sigma_m"):
         FilterConfig(gps_white_sigma_m=-1.0)
     with pytest.raises(FilterConfigError, match="finite"):

@@ -43,6 +43,7 @@ _NAMES = (
     "NMEM",
     "NH",
     "SNAP",
+    "FAULT_REASONS",
 )
 
 

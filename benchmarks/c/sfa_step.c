@@ -440,6 +440,7 @@ static long status_of(const double *x, const double *P, const double *aux, const
     double sigma = var > 0.0 ? sqrt(var) : 0.0;
     if (aux[A_SLIP] != 0.0 && aux[A_SLIP_LLR] > -cfg[K_SLIP_ARB_LLR])
         sigma += fabs(aux[A_SLIP_DS]) / cfg[K_Z_INTERVAL];
+    if (bits & FAULT_REASONS) sigma *= cfg[K_FAULT_SIGMA_SCALE];
     if (sigma > cfg[K_LOST_SIGMA]) bits |= R_SIGMA_LOST;
     else if (sigma > cfg[K_DEGRADED_SIGMA]) bits |= R_SIGMA_HIGH;
     *bits_out = bits;
