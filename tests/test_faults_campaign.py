@@ -239,3 +239,30 @@ def test_live_authenticated_row(tmp_path):
     assert rejected["auth_tag"] > 0 and rejected["auth_replay"] > 0  # bit flips, replays
     assert rejected.get("auth_magic", 0) + rejected.get("auth_short", 0) > 0  # unwrapped garbage
     assert trace["metrics"]["link"]["acks"] > 0
+
+
+def test_live_listener_runs_at_the_deployed_priority():
+    """Live rows start the listener as deploy/systemd/sfa-listener.service does (Nice=-5) where the
+    user may raise priority; elsewhere the listener keeps the default and the row notes it."""
+    import os
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    from tools.faults.live import LISTENER_NICE, _deployed_priority, _niceness
+
+    unit = Path(__file__).resolve().parents[1] / "deploy" / "systemd" / "sfa-listener.service"
+    assert f"Nice={LISTENER_NICE}" in unit.read_text().splitlines()
+    before = _niceness(os.getpid())
+    p = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(5)"],  # noqa: PLW1509
+                         preexec_fn=_deployed_priority)
+    try:
+        got = _niceness(p.pid)
+    finally:
+        p.kill()
+        p.wait(timeout=10)
+    assert _niceness(os.getpid()) == before  # only the child changed
+    if os.geteuid() == 0:
+        assert got == max(before + LISTENER_NICE, -20)
+    else:
+        assert got in (before, max(before + LISTENER_NICE, -20))

@@ -152,6 +152,27 @@ def fresh_mask(seq: np.ndarray) -> np.ndarray:
     return mask
 
 
+#: the listener's priority in deploy/systemd/sfa-listener.service (``Nice=-5``): live rows run it as deployed,
+#: while the simulator, the proxies and the injector (on the target: other machines) keep the default 0
+LISTENER_NICE = -5
+
+
+def _deployed_priority() -> None:
+    """preexec_fn of the listener's process: the deployed niceness where allowed (root), else unchanged."""
+    try:
+        os.nice(LISTENER_NICE)
+    except OSError:
+        pass
+
+
+def _niceness(pid: int) -> int | None:
+    """Niceness of process ``pid`` (None when it cannot be read)."""
+    try:
+        return os.getpriority(os.PRIO_PROCESS, pid)
+    except OSError:
+        return None
+
+
 def split_injections(imp: Impairments) -> tuple[Impairments, Impairments | None]:
     """(what the input proxy does, what the injector process sends; None: nothing to inject).
 
@@ -252,8 +273,9 @@ def run_live(spec: ScenarioSpec, out: Path) -> Observation:
     readers: dict[str, LogReader] = {}
     rss: list[tuple[float, float]] = []
 
-    def start(name: str, argv: list[str]) -> subprocess.Popen:
-        p = subprocess.Popen(argv, stderr=subprocess.PIPE, stdout=subprocess.DEVNULL, text=True, env=env)
+    def start(name: str, argv: list[str], preexec_fn=None) -> subprocess.Popen:
+        p = subprocess.Popen(argv, stderr=subprocess.PIPE, stdout=subprocess.DEVNULL, text=True, env=env,
+                             preexec_fn=preexec_fn)  # noqa: PLW1509 - only _deployed_priority, async-safe
         procs.append(p)
         reader = LogReader(p.stderr, out / f"{name}.log")
         reader.start()
@@ -274,9 +296,14 @@ def run_live(spec: ScenarioSpec, out: Path) -> Observation:
         listen_argv = _sfa("listen", "--bind", listen_host, "--port", str(listen_port), "--obcu", obcu_target,
                            "--set", "log.metrics_interval_s=1", "--set", f"clock.rate={spec.speed}",
                            *[a for o in overrides for a in ("--set", o)])
-        listener = start("listener", ns.wrap(listen_argv) if ns else listen_argv)
+        listener = start("listener", ns.wrap(listen_argv) if ns else listen_argv,
+                         preexec_fn=_deployed_priority)
         wait_ready("listener", listener, READY_TIMEOUT_S)
         listener_pid = ns.child_pid(listener.pid) if ns else listener.pid
+        nice = _niceness(listener_pid)
+        if nice != LISTENER_NICE:
+            notes.append(f"listener at nice {nice}, not the deployed {LISTENER_NICE} "
+                         "(needs root or CAP_SYS_NICE)")
         obcu = start("obcu", _sfa("obcu", "--bind", obcu_host, "--port", str(obcu_port), "--csv",
                                   str(out / "obcu.csv"), "--quiet", "--idle-exit", "10",
                                   *_windows_args("--drop-acks", spec.obcu.drop_acks),
