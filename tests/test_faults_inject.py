@@ -15,7 +15,14 @@ import pytest
 from listener.codec import DecodeError, decode_input
 from tools.faults.config import Impairments
 from tools.faults.inject import Injector
-from tools.faults.live import lag_ages, split_injections, window_p99_ms
+from tools.faults.live import (
+    FLOOD_SCHEDULE_SLACK,
+    behind_schedule,
+    injection_window_s,
+    lag_ages,
+    split_injections,
+    window_p99_ms,
+)
 
 
 def _receiver() -> tuple[socket.socket, list[tuple[float, bytes]], threading.Thread]:
@@ -142,3 +149,16 @@ def test_lag_reference_skips_the_initialisation_outputs():
     p99, n = window_p99_ms(sched, age, 0.095, 0.115)  # sched = epoch + 80 ms
     assert n == 2 and p99 == pytest.approx(4.95, abs=0.01)
     assert window_p99_ms(sched, age, 5.0, 6.0) == (None, 0)
+
+
+def test_a_starved_injector_is_behind_schedule():
+    """The flood row's latency check only counts when the injector kept its rate: 510,000 datagrams
+    sent over 10.00 s of a 10 s window is on schedule, over 12.67 s (measured once with a test suite
+    running beside it: 40,252/s instead of 51,000/s) is not."""
+    imp = Impairments(garbage_rate_hz=50_000.0, inject_start_s=30.0, inject_end_s=40.0)
+    assert injection_window_s(imp) == 10.0
+    assert not behind_schedule(10.0, injection_window_s(imp))
+    assert not behind_schedule(FLOOD_SCHEDULE_SLACK * 10.0, 10.0)
+    assert behind_schedule(12.67, injection_window_s(imp))
+    assert not behind_schedule(1e6, injection_window_s(Impairments(garbage_rate_hz=10.0)))  # no end
+    assert injection_window_s(None) == float("inf")
