@@ -91,6 +91,38 @@ def _fit(st, smp_t, smp_o, n):
 
 
 @njit(cache=True)
+def _on_strobe(ts, t, n, window, max_step, st, smp_t, smp_o):
+    """``StrobeClock.on_strobe(ts, t)`` on the state (st, smp_t, smp_o with n samples); returns n."""
+    if math.isfinite(ts) and math.isfinite(t):
+        offset = ts - t
+        accept = True
+        if n > 0:
+            predicted = st[C_INTERCEPT] + st[C_SLOPE] * (t - st[C_REF])
+            if abs(offset - predicted) > max_step:
+                if st[C_HAS_CAND] == 0.0 or abs(offset - st[C_CAND]) > max_step:
+                    st[C_CAND] = offset
+                    st[C_HAS_CAND] = 1.0
+                    st[C_UNCONFIRMED] += 1.0
+                    accept = False
+                else:
+                    n = 0
+                    st[C_RESETS] += 1.0
+        if accept:
+            st[C_HAS_CAND] = 0.0
+            if n == window:  # deque(maxlen=window).append drops the oldest
+                for i in range(n - 1):
+                    smp_t[i] = smp_t[i + 1]
+                    smp_o[i] = smp_o[i + 1]
+                n -= 1
+            smp_t[n] = t
+            smp_o[n] = offset
+            n += 1
+            st[C_STROBES] += 1.0
+            _fit(st, smp_t, smp_o, n)
+    return n
+
+
+@njit(cache=True)
 def run_strobes(timestamp, now, window, max_step, st, smp_t, smp_o, out):
     """Apply STROBEs (sensor-set ``timestamp[k]`` received at ``now[k]``) to the clock state.
 
@@ -98,34 +130,7 @@ def run_strobes(timestamp, now, window, max_step, st, smp_t, smp_o, out):
     of them (capacity ``window``). ``out[k]``: (synced, intercept, slope, ref) after STROBE k."""
     n = int(st[C_N])
     for k in range(timestamp.shape[0]):
-        ts = timestamp[k]
-        t = now[k]
-        if math.isfinite(ts) and math.isfinite(t):
-            offset = ts - t
-            accept = True
-            if n > 0:
-                predicted = st[C_INTERCEPT] + st[C_SLOPE] * (t - st[C_REF])
-                if abs(offset - predicted) > max_step:
-                    if st[C_HAS_CAND] == 0.0 or abs(offset - st[C_CAND]) > max_step:
-                        st[C_CAND] = offset
-                        st[C_HAS_CAND] = 1.0
-                        st[C_UNCONFIRMED] += 1.0
-                        accept = False
-                    else:
-                        n = 0
-                        st[C_RESETS] += 1.0
-            if accept:
-                st[C_HAS_CAND] = 0.0
-                if n == window:  # deque(maxlen=window).append drops the oldest
-                    for i in range(n - 1):
-                        smp_t[i] = smp_t[i + 1]
-                        smp_o[i] = smp_o[i + 1]
-                    n -= 1
-                smp_t[n] = t
-                smp_o[n] = offset
-                n += 1
-                st[C_STROBES] += 1.0
-                _fit(st, smp_t, smp_o, n)
+        n = _on_strobe(timestamp[k], now[k], n, window, max_step, st, smp_t, smp_o)
         out[k, 0] = 1.0 if n > 0 else 0.0
         out[k, 1] = st[C_INTERCEPT]
         out[k, 2] = st[C_SLOPE]
@@ -133,11 +138,47 @@ def run_strobes(timestamp, now, window, max_step, st, smp_t, smp_o, out):
     st[C_N] = n
 
 
-def replay_strobes(clock, timestamp: np.ndarray, now: np.ndarray) -> np.ndarray:
-    """Advance ``clock`` (a StrobeClock) by the STROBEs as ``on_strobe`` would, in compiled code.
+@njit(cache=True)
+def run_clock(
+    s_row, s_ts, s_time, m_row, m_time, t_s, window, max_step, max_future, stale_before, st, smp_t, smp_o,
+    fresh_min, future,
+):  # fmt: skip
+    """The STROBEs (datagram ``s_row``, timestamp ``s_ts``, arrival ``s_time``) and the measurements
+    (datagram ``m_row``, arrival ``m_time``, epoch ``t_s``) of one capture stretch, in datagram order.
 
-    Returns (k + 1, 4): row 0 the state before the first STROBE, row j + 1 after STROBE j, each as
-    (synced, intercept, slope, ref). The clock object is left exactly as the STROBEs would leave it."""
+    Per measurement, with the clock as the STROBEs before it left it (``StrobeClock.to_sensor_time`` of its
+    arrival: sensor_now; NaN before any STROBE): ``future[j]``: the listener rejects it as epoch_future
+    (t_s > sensor_now + max_future); ``fresh_min[j]``: sensor_now - stale_before (estimates with an older
+    epoch are stale, not sent). Every STROBE is applied (those after the last measurement too).
+    Returns the number of future epochs."""
+    n = int(st[C_N])
+    si = 0
+    n_s = s_row.shape[0]
+    n_future = 0
+    for j in range(m_row.shape[0]):
+        r = m_row[j]
+        while si < n_s and s_row[si] < r:
+            n = _on_strobe(s_ts[si], s_time[si], n, window, max_step, st, smp_t, smp_o)
+            si += 1
+        now = m_time[j]
+        if n > 0:
+            sn = now + (st[C_INTERCEPT] + st[C_SLOPE] * (now - st[C_REF]))  # as sensor_now
+        else:
+            sn = math.nan
+        fut = t_s[j] > sn + max_future
+        future[j] = fut
+        if fut:
+            n_future += 1
+        fresh_min[j] = sn - stale_before
+    while si < n_s:
+        n = _on_strobe(s_ts[si], s_time[si], n, window, max_step, st, smp_t, smp_o)
+        si += 1
+    st[C_N] = n
+    return n_future
+
+
+def _state_of(clock):
+    """(window, st, smp_t, smp_o): a StrobeClock's state as run_strobes / run_clock read it."""
     window = int(clock._cfg.window_strobes)
     samples = list(clock._samples)
     st = np.zeros(NSTATE)
@@ -156,8 +197,30 @@ def replay_strobes(clock, timestamp: np.ndarray, now: np.ndarray) -> np.ndarray:
     for i, (t, o) in enumerate(samples):
         smp_t[i] = t
         smp_o[i] = o
+    return window, st, smp_t, smp_o
+
+
+def _set_state(clock, window, st, smp_t, smp_o) -> None:
+    """Leave ``clock`` exactly as the compiled STROBEs left the state."""
+    n = int(st[C_N])
+    clock._samples = deque(zip(smp_t[:n].tolist(), smp_o[:n].tolist(), strict=True), maxlen=window)
+    clock._slope = float(st[C_SLOPE])
+    clock._ref_now = float(st[C_REF])
+    clock._intercept = float(st[C_INTERCEPT])
+    clock.resets = int(st[C_RESETS])
+    clock.strobes = int(st[C_STROBES])
+    clock.unconfirmed = int(st[C_UNCONFIRMED])
+    clock._candidate = float(st[C_CAND]) if st[C_HAS_CAND] != 0.0 else None
+
+
+def replay_strobes(clock, timestamp: np.ndarray, now: np.ndarray) -> np.ndarray:
+    """Advance ``clock`` (a StrobeClock) by the STROBEs as ``on_strobe`` would, in compiled code.
+
+    Returns (k + 1, 4): row 0 the state before the first STROBE, row j + 1 after STROBE j, each as
+    (synced, intercept, slope, ref). The clock object is left exactly as the STROBEs would leave it."""
+    window, st, smp_t, smp_o = _state_of(clock)
     out = np.zeros((timestamp.shape[0] + 1, 4))
-    out[0] = (1.0 if samples else 0.0, clock._intercept, clock._slope, clock._ref_now)
+    out[0] = (1.0 if st[C_N] > 0 else 0.0, clock._intercept, clock._slope, clock._ref_now)
     run_strobes(
         np.ascontiguousarray(timestamp, dtype=np.float64),
         np.ascontiguousarray(now, dtype=np.float64),
@@ -168,16 +231,26 @@ def replay_strobes(clock, timestamp: np.ndarray, now: np.ndarray) -> np.ndarray:
         smp_o,
         out[1:],
     )
-    n = int(st[C_N])
-    clock._samples = deque(zip(smp_t[:n].tolist(), smp_o[:n].tolist(), strict=True), maxlen=window)
-    clock._slope = float(st[C_SLOPE])
-    clock._ref_now = float(st[C_REF])
-    clock._intercept = float(st[C_INTERCEPT])
-    clock.resets = int(st[C_RESETS])
-    clock.strobes = int(st[C_STROBES])
-    clock.unconfirmed = int(st[C_UNCONFIRMED])
-    clock._candidate = float(st[C_CAND]) if st[C_HAS_CAND] != 0.0 else None
+    _set_state(clock, window, st, smp_t, smp_o)
     return out
+
+
+def replay_clock(clock, strobes, meas, max_future: float, stale_before: float):
+    """Advance ``clock`` (a StrobeClock) by the STROBEs ``strobes`` = (datagram index, timestamp, arrival)
+    and date the measurements ``meas`` = (datagram index, arrival, epoch) against it on the way, as
+    :func:`replay_strobes` and :func:`sensor_now` would (one compiled pass, no per-measurement state rows).
+
+    Returns (fresh_min, future, number of future epochs): see :func:`run_clock`."""
+    window, st, smp_t, smp_o = _state_of(clock)
+    m_row = meas[0]
+    fresh_min = np.empty(m_row.shape[0])
+    future = np.empty(m_row.shape[0], dtype=np.bool_)
+    n_future = run_clock(
+        *strobes, *meas, window, float(clock._cfg.max_step_s), float(max_future), float(stale_before),
+        st, smp_t, smp_o, fresh_min, future,
+    )  # fmt: skip
+    _set_state(clock, window, st, smp_t, smp_o)
+    return fresh_min, future, int(n_future)
 
 
 def sensor_now(params: np.ndarray, now: np.ndarray) -> np.ndarray:
@@ -189,4 +262,4 @@ def sensor_now(params: np.ndarray, now: np.ndarray) -> np.ndarray:
     return np.where(params[:, 0] != 0.0, out, math.nan)
 
 
-__all__ = ["clock_supported", "replay_strobes", "run_strobes", "sensor_now"]
+__all__ = ["clock_supported", "replay_clock", "replay_strobes", "run_clock", "run_strobes", "sensor_now"]

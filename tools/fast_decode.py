@@ -14,11 +14,10 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from numba import njit
 
 from listener.codec import FIELD_RANGES, INPUT_FORMS, input_layout
+from tools.fast_ingest import MAX_FIELDS, decode_many  # compiled with the fast replay's single pass
 
-MAX_FIELDS = 9  #: most payload fields of any form (GPS: 2 ints + 5 doubles; IMU: 7 doubles)
 _TABLE = 16 * 8 * 8  #: index = type * 64 + n_int * 8 + n_double (type < 16, n_int < 8, n_double < 8)
 
 
@@ -51,64 +50,6 @@ class DecodedBatch:
     n_int: np.ndarray  #: N_INT (int64)
     n_double: np.ndarray  #: N_DOUBLE (int64)
     values: np.ndarray  #: (n, MAX_FIELDS) float64: ints then doubles, wire order; NaN beyond the form
-
-
-@njit(cache=True)
-def _i32le(d, i):
-    u = np.int64(d[i]) | (np.int64(d[i + 1]) << 8) | (np.int64(d[i + 2]) << 16) | (np.int64(d[i + 3]) << 24)
-    if u >= 2147483648:
-        u -= 4294967296
-    return u
-
-
-@njit(cache=True)
-def decode_many(d, offset, length, form_size, lo, hi, lo_open, ok, stype, seq, n_int, n_double, values):
-    """Decode every datagram d[offset[k]:offset[k]+length[k]] (little-endian, the protocol's order)."""
-    buf = np.empty(8, dtype=np.uint8)
-    as_f64 = buf.view(np.float64)  # reinterpret 8 little-endian bytes (the host is little-endian)
-    for k in range(offset.shape[0]):
-        o = offset[k]
-        n = length[k]
-        ok[k] = False
-        values[k, :] = np.nan
-        if n < 5:
-            stype[k] = -1
-            seq[k] = -1
-            n_int[k] = -1
-            n_double[k] = -1
-            continue
-        t = np.int64(d[o])
-        ni = np.int64(d[o + 3])
-        nd = np.int64(d[o + 4])
-        stype[k] = t
-        seq[k] = np.int64(d[o + 1]) | (np.int64(d[o + 2]) << 8)
-        n_int[k] = ni
-        n_double[k] = nd
-        if t >= 16 or ni >= 8 or nd >= 8:
-            continue
-        idx = t * 64 + ni * 8 + nd
-        if form_size[idx] == 0 or form_size[idx] != n:
-            continue
-        good = True
-        p = o + 5
-        for j in range(ni + nd):
-            if j < ni:
-                x = np.float64(_i32le(d, p))
-                p += 4
-            else:
-                for b in range(8):
-                    buf[b] = d[p + b]
-                x = as_f64[0]
-                p += 8
-            values[k, j] = x
-            if lo_open[idx, j] != 0:
-                inside = lo[idx, j] < x <= hi[idx, j]
-            else:
-                inside = lo[idx, j] <= x <= hi[idx, j]
-            if not inside:
-                good = False
-                break
-        ok[k] = good
 
 
 def decode_batch(data: np.ndarray, offset: np.ndarray, length: np.ndarray) -> DecodedBatch:
