@@ -30,7 +30,8 @@ C_UNCONFIRMED = 5
 C_CAND = 6  #: candidate offset (meaningful when C_HAS_CAND != 0)
 C_HAS_CAND = 7
 C_N = 8  #: samples in the window
-NSTATE = 9
+C_HEAD = 9  #: slot of the oldest sample in the mirrored sample buffers
+NSTATE = 10
 
 
 def clock_supported() -> bool:
@@ -38,21 +39,20 @@ def clock_supported() -> bool:
     return sys.version_info < (3, 12)
 
 
-@njit(cache=True)
-def _fit(st, smp_t, smp_o, n):
-    ref = smp_t[n - 1]
+@njit(cache=True, _nrt=False)
+def _fit(st, smp_t, smp_o, h0, n, hx, hy):
+    """StrobeClock._fit over the n samples smp_*[h0:h0 + n] (oldest first); hx, hy: hull scratch."""
+    ref = smp_t[h0 + n - 1]
     slope = 0.0
-    intercept = smp_o[0]
+    intercept = smp_o[h0]
     for i in range(1, n):
-        if smp_o[i] > intercept:
-            intercept = smp_o[i]
-    if n >= 10 and smp_t[n - 1] - smp_t[0] >= 20.0:
-        hx = np.empty(n)
-        hy = np.empty(n)
+        if smp_o[h0 + i] > intercept:
+            intercept = smp_o[h0 + i]
+    if n >= 10 and smp_t[h0 + n - 1] - smp_t[h0] >= 20.0:
         m = 0
         for i in range(n):
-            px = smp_t[i]
-            py = smp_o[i]
+            px = smp_t[h0 + i]
+            py = smp_o[h0 + i]
             while m >= 2:
                 x1 = hx[m - 2]
                 y1 = hy[m - 2]
@@ -67,7 +67,7 @@ def _fit(st, smp_t, smp_o, n):
             m += 1
         acc = 0.0
         for i in range(n):
-            acc = acc + smp_t[i]
+            acc = acc + smp_t[h0 + i]
         t_mean = acc / n
         for j in range(m - 1):
             ta = hx[j]
@@ -80,9 +80,9 @@ def _fit(st, smp_t, smp_o, n):
         # max(-1e-3, min(1e-3, slope)) with Python's semantics (the first argument unless the second wins)
         lo = slope if slope < 1e-3 else 1e-3
         slope = lo if lo > -1e-3 else -1e-3
-        intercept = smp_o[0] - slope * (smp_t[0] - ref)
+        intercept = smp_o[h0] - slope * (smp_t[h0] - ref)
         for i in range(1, n):
-            v = smp_o[i] - slope * (smp_t[i] - ref)
+            v = smp_o[h0 + i] - slope * (smp_t[h0 + i] - ref)
             if v > intercept:
                 intercept = v
     st[C_INTERCEPT] = intercept
@@ -90,9 +90,11 @@ def _fit(st, smp_t, smp_o, n):
     st[C_REF] = ref
 
 
-@njit(cache=True)
-def _on_strobe(ts, t, n, window, max_step, st, smp_t, smp_o):
-    """``StrobeClock.on_strobe(ts, t)`` on the state (st, smp_t, smp_o with n samples); returns n."""
+@njit(cache=True, _nrt=False)
+def _on_strobe(ts, t, n, window, max_step, st, smp_t, smp_o, hx, hy):
+    """``StrobeClock.on_strobe(ts, t)`` on the state: st, and the n samples from slot st[C_HEAD] of the
+    mirrored buffers smp_t, smp_o (2 * window: sample slot p is also kept at p + window, so the window
+    is always one contiguous stretch and dropping the oldest moves nothing). Returns n."""
     if math.isfinite(ts) and math.isfinite(t):
         offset = ts - t
         accept = True
@@ -109,28 +111,36 @@ def _on_strobe(ts, t, n, window, max_step, st, smp_t, smp_o):
                     st[C_RESETS] += 1.0
         if accept:
             st[C_HAS_CAND] = 0.0
+            head = int(st[C_HEAD])
             if n == window:  # deque(maxlen=window).append drops the oldest
-                for i in range(n - 1):
-                    smp_t[i] = smp_t[i + 1]
-                    smp_o[i] = smp_o[i + 1]
+                head += 1
+                if head == window:
+                    head = 0
                 n -= 1
-            smp_t[n] = t
-            smp_o[n] = offset
+            p = head + n
+            if p >= window:
+                p -= window
+            smp_t[p] = t
+            smp_o[p] = offset
+            smp_t[p + window] = t
+            smp_o[p + window] = offset
             n += 1
+            st[C_HEAD] = head
             st[C_STROBES] += 1.0
-            _fit(st, smp_t, smp_o, n)
+            _fit(st, smp_t, smp_o, head, n, hx, hy)
     return n
 
 
-@njit(cache=True)
-def run_strobes(timestamp, now, window, max_step, st, smp_t, smp_o, out):
+@njit(cache=True, _nrt=False)
+def run_strobes(timestamp, now, window, max_step, st, smp_t, smp_o, hx, hy, out):
     """Apply STROBEs (sensor-set ``timestamp[k]`` received at ``now[k]``) to the clock state.
 
-    ``st``: scalar state (slots C_*); ``smp_t``/``smp_o``: the window's samples, oldest first, ``st[C_N]``
-    of them (capacity ``window``). ``out[k]``: (synced, intercept, slope, ref) after STROBE k."""
+    ``st``: scalar state (slots C_*); ``smp_t``/``smp_o``: the window's samples, oldest first from slot
+    ``st[C_HEAD]``, ``st[C_N]`` of them (mirrored buffers of 2 * ``window``); hx, hy: scratch (window).
+    ``out[k]``: (synced, intercept, slope, ref) after STROBE k."""
     n = int(st[C_N])
     for k in range(timestamp.shape[0]):
-        n = _on_strobe(timestamp[k], now[k], n, window, max_step, st, smp_t, smp_o)
+        n = _on_strobe(timestamp[k], now[k], n, window, max_step, st, smp_t, smp_o, hx, hy)
         out[k, 0] = 1.0 if n > 0 else 0.0
         out[k, 1] = st[C_INTERCEPT]
         out[k, 2] = st[C_SLOPE]
@@ -138,10 +148,10 @@ def run_strobes(timestamp, now, window, max_step, st, smp_t, smp_o, out):
     st[C_N] = n
 
 
-@njit(cache=True)
+@njit(cache=True, _nrt=False)
 def run_clock(
     s_row, s_ts, s_time, m_row, m_time, t_s, window, max_step, max_future, stale_before, st, smp_t, smp_o,
-    fresh_min, future,
+    hx, hy, fresh_min, future,
 ):  # fmt: skip
     """The STROBEs (datagram ``s_row``, timestamp ``s_ts``, arrival ``s_time``) and the measurements
     (datagram ``m_row``, arrival ``m_time``, epoch ``t_s``) of one capture stretch, in datagram order.
@@ -158,7 +168,7 @@ def run_clock(
     for j in range(m_row.shape[0]):
         r = m_row[j]
         while si < n_s and s_row[si] < r:
-            n = _on_strobe(s_ts[si], s_time[si], n, window, max_step, st, smp_t, smp_o)
+            n = _on_strobe(s_ts[si], s_time[si], n, window, max_step, st, smp_t, smp_o, hx, hy)
             si += 1
         now = m_time[j]
         if n > 0:
@@ -171,14 +181,14 @@ def run_clock(
             n_future += 1
         fresh_min[j] = sn - stale_before
     while si < n_s:
-        n = _on_strobe(s_ts[si], s_time[si], n, window, max_step, st, smp_t, smp_o)
+        n = _on_strobe(s_ts[si], s_time[si], n, window, max_step, st, smp_t, smp_o, hx, hy)
         si += 1
     st[C_N] = n
     return n_future
 
 
 def _state_of(clock):
-    """(window, st, smp_t, smp_o): a StrobeClock's state as run_strobes / run_clock read it."""
+    """(window, st, smp_t, smp_o, hx, hy): a StrobeClock's state as run_strobes / run_clock read it."""
     window = int(clock._cfg.window_strobes)
     samples = list(clock._samples)
     st = np.zeros(NSTATE)
@@ -192,18 +202,22 @@ def _state_of(clock):
         st[C_CAND] = clock._candidate
         st[C_HAS_CAND] = 1.0
     st[C_N] = len(samples)
-    smp_t = np.zeros(max(window, 1))
-    smp_o = np.zeros(max(window, 1))
+    st[C_HEAD] = 0
+    size = max(window, 1)
+    smp_t = np.zeros(2 * size)
+    smp_o = np.zeros(2 * size)
     for i, (t, o) in enumerate(samples):
-        smp_t[i] = t
-        smp_o[i] = o
-    return window, st, smp_t, smp_o
+        smp_t[i] = smp_t[i + size] = t
+        smp_o[i] = smp_o[i + size] = o
+    return window, st, smp_t, smp_o, np.zeros(size), np.zeros(size)
 
 
 def _set_state(clock, window, st, smp_t, smp_o) -> None:
     """Leave ``clock`` exactly as the compiled STROBEs left the state."""
     n = int(st[C_N])
-    clock._samples = deque(zip(smp_t[:n].tolist(), smp_o[:n].tolist(), strict=True), maxlen=window)
+    h = int(st[C_HEAD])
+    samples = zip(smp_t[h : h + n].tolist(), smp_o[h : h + n].tolist(), strict=True)
+    clock._samples = deque(samples, maxlen=window)
     clock._slope = float(st[C_SLOPE])
     clock._ref_now = float(st[C_REF])
     clock._intercept = float(st[C_INTERCEPT])
@@ -218,7 +232,7 @@ def replay_strobes(clock, timestamp: np.ndarray, now: np.ndarray) -> np.ndarray:
 
     Returns (k + 1, 4): row 0 the state before the first STROBE, row j + 1 after STROBE j, each as
     (synced, intercept, slope, ref). The clock object is left exactly as the STROBEs would leave it."""
-    window, st, smp_t, smp_o = _state_of(clock)
+    window, st, smp_t, smp_o, hx, hy = _state_of(clock)
     out = np.zeros((timestamp.shape[0] + 1, 4))
     out[0] = (1.0 if st[C_N] > 0 else 0.0, clock._intercept, clock._slope, clock._ref_now)
     run_strobes(
@@ -229,6 +243,8 @@ def replay_strobes(clock, timestamp: np.ndarray, now: np.ndarray) -> np.ndarray:
         st,
         smp_t,
         smp_o,
+        hx,
+        hy,
         out[1:],
     )
     _set_state(clock, window, st, smp_t, smp_o)
@@ -241,13 +257,13 @@ def replay_clock(clock, strobes, meas, max_future: float, stale_before: float):
     :func:`replay_strobes` and :func:`sensor_now` would (one compiled pass, no per-measurement state rows).
 
     Returns (fresh_min, future, number of future epochs): see :func:`run_clock`."""
-    window, st, smp_t, smp_o = _state_of(clock)
+    window, st, smp_t, smp_o, hx, hy = _state_of(clock)
     m_row = meas[0]
     fresh_min = np.empty(m_row.shape[0])
     future = np.empty(m_row.shape[0], dtype=np.bool_)
     n_future = run_clock(
         *strobes, *meas, window, float(clock._cfg.max_step_s), float(max_future), float(stale_before),
-        st, smp_t, smp_o, fresh_min, future,
+        st, smp_t, smp_o, hx, hy, fresh_min, future,
     )  # fmt: skip
     _set_state(clock, window, st, smp_t, smp_o)
     return fresh_min, future, int(n_future)

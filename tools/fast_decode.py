@@ -3,7 +3,9 @@
 The allowed forms (``INPUT_FORMS``), their field order (``input_layout``) and every field's range
 (``FIELD_RANGES``) are read from :mod:`listener.codec` when this module is imported, so the compiled
 check cannot drift from the codec: exact length for the form, then every field inside its range
-(NaN and infinities fail the comparison, as in the codec's chained comparisons). A datagram the
+(NaN and infinities fail the comparison, as in the codec's chained comparisons). An open lower bound
+``lo < x`` is checked as the closed ``nextafter(lo, +inf) <= x``, the same set of doubles (a branch-free
+check: one table lookup and two comparisons per field). A datagram the
 compiled pass rejects is handed to ``listener.codec.decode_input`` for its exact reason, so the
 rejection counters are those of the listener by construction; the compiled pass only has to never
 accept what the codec rejects (checked by tests/test_fast_replay.py with hypothesis).
@@ -11,6 +13,7 @@ accept what the codec rejects (checked by tests/test_fast_replay.py with hypothe
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -23,21 +26,24 @@ _TABLE = 16 * 8 * 8  #: index = type * 64 + n_int * 8 + n_double (type < 16, n_i
 
 def _build_tables():
     size = np.zeros(_TABLE, dtype=np.int64)  # 0: no such form
-    lo = np.zeros((_TABLE, MAX_FIELDS))
+    lo = np.zeros((_TABLE, MAX_FIELDS))  # inclusive lower bound
     hi = np.zeros((_TABLE, MAX_FIELDS))
-    lo_open = np.zeros((_TABLE, MAX_FIELDS), dtype=np.int64)
     for stype, n_int, n_double in INPUT_FORMS:
         idx = int(stype) * 64 + n_int * 8 + n_double
         size[idx] = 5 + 4 * n_int + 8 * n_double
         for j, name in enumerate(input_layout(stype, n_int, n_double)):
             r = FIELD_RANGES[name]
-            lo[idx, j] = r.lo
+            lo[idx, j] = _inclusive(float(r.lo)) if r.lo_open else r.lo
             hi[idx, j] = r.hi
-            lo_open[idx, j] = 1 if r.lo_open else 0
-    return size, lo, hi, lo_open
+    return size, lo, hi
 
 
-FORM_SIZE, FIELD_LO, FIELD_HI, FIELD_LO_OPEN = _build_tables()
+def _inclusive(lo: float) -> float:
+    """The smallest double x with lo < x (no double is above +inf: NaN, which no x reaches)."""
+    return math.nan if lo == math.inf else math.nextafter(lo, math.inf)
+
+
+FORM_SIZE, FIELD_LO, FIELD_HI = _build_tables()  #: FIELD_LO: inclusive (open bounds moved up one double)
 
 
 @dataclass(frozen=True)
@@ -61,9 +67,7 @@ def decode_batch(data: np.ndarray, offset: np.ndarray, length: np.ndarray) -> De
     ni = np.zeros(n, dtype=np.int64)
     nd = np.zeros(n, dtype=np.int64)
     values = np.empty((n, MAX_FIELDS))
-    decode_many(
-        data, offset, length, FORM_SIZE, FIELD_LO, FIELD_HI, FIELD_LO_OPEN, ok, stype, seq, ni, nd, values
-    )
+    decode_many(data, offset, length, FORM_SIZE, FIELD_LO, FIELD_HI, ok, stype, seq, ni, nd, values)
     return DecodedBatch(ok, stype, seq, ni, nd, values)
 
 

@@ -219,12 +219,13 @@ def scan_records(d, port, out_t, out_ip, out_port, out_off, out_len, out_frame, 
 
 
 @njit(cache=True, _nrt=False)
-def _decode_one(d, o, n, form_size, lo, hi, lo_open, w):
+def _decode_one(d, o, n, form_size, lo, hi, w):
     """Decode the payload d[o:o+n] into ``w`` (ints then doubles in wire order, NaN beyond the form).
 
     Returns (valid, SENSOR_TYPE, SEQ, N_INT, N_DOUBLE); -1 for the header fields of a payload shorter than
-    the header. Valid: a known form of exactly this length with every field inside its range (NaN and
-    infinities fail the comparison, as in the codec's chained comparisons)."""
+    the header. Valid: a known form of exactly this length with every field inside its range
+    lo <= x <= hi (lo inclusive: tools.fast_decode moves open bounds up one double; NaN and infinities
+    fail the comparison, as in the codec's chained comparisons)."""
     for j in range(MAX_FIELDS):
         w[j] = np.nan
     if n < 5:
@@ -247,20 +248,16 @@ def _decode_one(d, o, n, form_size, lo, hi, lo_open, w):
             x = _load_f64(d, p)
             p += 8
         w[j] = x
-        if lo_open[idx, j] != 0:
-            inside = lo[idx, j] < x <= hi[idx, j]
-        else:
-            inside = lo[idx, j] <= x <= hi[idx, j]
-        if not inside:
+        if not (lo[idx, j] <= x and x <= hi[idx, j]):
             return False, t, seq, ni, nd
     return True, t, seq, ni, nd
 
 
 @njit(cache=True, _nrt=False)
-def decode_many(d, offset, length, form_size, lo, hi, lo_open, ok, stype, seq, n_int, n_double, values):
+def decode_many(d, offset, length, form_size, lo, hi, ok, stype, seq, n_int, n_double, values):
     """Decode every datagram d[offset[k]:offset[k]+length[k]] (little-endian, the protocol's order)."""
     for k in range(offset.shape[0]):
-        good, t, sq, ni, nd = _decode_one(d, offset[k], length[k], form_size, lo, hi, lo_open, values[k])
+        good, t, sq, ni, nd = _decode_one(d, offset[k], length[k], form_size, lo, hi, values[k])
         ok[k] = good
         stype[k] = t
         seq[k] = sq
@@ -277,7 +274,6 @@ def ingest(
     form_size,
     lo,
     hi,
-    lo_open,
     need_doubles,
     row_off,
     row_code,
@@ -342,7 +338,7 @@ def ingest(
         k += 1
         if stopped:  # the replay ended at the STOP; the rest of the file is only walked (for errors)
             continue
-        good, t, sq, ni, nd = _decode_one(d, o, plen, form_size, lo, hi, lo_open, w)
+        good, t, sq, ni, nd = _decode_one(d, o, plen, form_size, lo, hi, w)
         row_off[r] = o
         if not good:
             row_code[r] = -1
@@ -515,7 +511,7 @@ def ingest_capture(path, port: int, per_type: bool, max_streams: int, tables):
     """Run :func:`ingest` over the capture at ``path``: an :class:`Ingested`, or a reason string when the
     file is not one the fast path reads (as :func:`tools.fast_pcap.scan_capture` words it).
 
-    ``tables``: (form_size, lo, hi, lo_open) of :mod:`tools.fast_decode`."""
+    ``tables``: (form_size, lo, hi) of :mod:`tools.fast_decode`."""
     data = map_capture(path)
     if isinstance(data, str):
         return data
@@ -543,9 +539,9 @@ def ingest_capture(path, port: int, per_type: bool, max_streams: int, tables):
     st_last = np.empty(max(streams, 1), dtype=np.int64)
     w = np.empty(MAX_FIELDS)
     res = np.zeros(NRES, dtype=np.int64)
-    form_size, lo, hi, lo_open = tables
+    form_size, lo, hi = tables
     ingest(
-        data, int(port), bool(per_type), streams, form_size, lo, hi, lo_open, EPOCH_DOUBLES_BY_TYPE,
+        data, int(port), bool(per_type), streams, form_size, lo, hi, EPOCH_DOUBLES_BY_TYPE,
         row_off, row_code, m_row, m_time, kind, t_s, vals, g_row, g_meas, g_time, g_lat, g_lon, g_fq,
         s_row, s_ts, s_time, skip, st_key, st_last, w, res,
     )  # fmt: skip

@@ -85,7 +85,7 @@ def try_fast_replay(capture_path, track, options=None):
     why = _options_reason(options)
     if why:
         return None, FastReplayInfo(False, why)
-    from tools.fast_decode import FIELD_HI, FIELD_LO, FIELD_LO_OPEN, FORM_SIZE
+    from tools.fast_decode import FIELD_HI, FIELD_LO, FORM_SIZE
     from tools.fast_ingest import R_DATAGRAMS, ingest_capture
 
     t0 = time.perf_counter()
@@ -95,7 +95,7 @@ def try_fast_replay(capture_path, track, options=None):
         options.port,
         inp.per_type_sequence,
         inp.max_streams,
-        (FORM_SIZE, FIELD_LO, FIELD_HI, FIELD_LO_OPEN),
+        (FORM_SIZE, FIELD_LO, FIELD_HI),
     )
     ingest_s = time.perf_counter() - t0
     if isinstance(got, str):
