@@ -9,6 +9,10 @@ line-by-line transliteration of ``on_strobe``, ``_fit`` and ``_upper_hull`` with
 operations in the same order (Python's ``sum`` of floats is a plain left-to-right sum up to Python 3.11;
 3.12 compensates it, so :func:`clock_supported` sends those interpreters to the Python clock).
 tests/test_fast_clock.py checks the two against each other STROBE by STROBE, steps and jitter included.
+The window is kept in mirrored buffers (each sample twice, ``window`` apart), so it is always one
+contiguous stretch and dropping the oldest sample moves nothing; the sums still run oldest first.
+:func:`run_clock` applies the STROBEs of a capture stretch and dates its measurements in one pass (the
+fast replay's clock stage); :func:`replay_strobes` returns the state after every STROBE instead.
 """
 
 from __future__ import annotations

@@ -1,6 +1,7 @@
 """Compiled reader of the common capture case: classic pcap, Ethernet, IPv4, UDP at fixed offsets.
 
-The file is memory-mapped and its record headers walked in one numba loop; each UDP datagram to the
+The file is memory-mapped and its record headers walked in one numba loop (``scan_records``, the walk
+the fast replay's single pass :func:`tools.fast_ingest.ingest` shares); each UDP datagram to the
 listener port is returned as (arrival time, source address and port, payload offset and length) into
 the mapped bytes, so no per-datagram Python object is ever built. Only the layout ``sfa sim`` and
 ``tcpdump -i lo`` write is handled here; anything else (pcapng, nanosecond timestamps, another link

@@ -6,21 +6,25 @@ known in advance: every stream in order, every measurement dated by its own epoc
 releasing each measurement at once (``merge.hold_s = 0``). :func:`fast_replay` checks that this is so
 and then runs the capture in compiled code:
 
-1. the pcap is memory-mapped and walked in a numba loop (:mod:`tools.fast_pcap`; classic pcap,
-   Ethernet, IPv4, UDP at fixed offsets),
-2. INPUT payloads are decoded in one compiled pass driven by listener.codec's own tables
-   (:mod:`tools.fast_decode`); rejected ones get their reason from ``listener.codec`` itself,
-3. the start of the capture goes through the exact pipeline, datagram by datagram, only until every
+1. one compiled pass over the memory-mapped pcap (:mod:`tools.fast_ingest`; classic pcap, Ethernet,
+   IPv4, UDP at fixed offsets) walks the records, decodes every INPUT payload against listener.codec's
+   own tables (:mod:`tools.fast_decode`), notes the stream table and the datagrams that would need the
+   sequence buffer or STROBE dating, and packs the measurements straight into ``sfa.batch`` arrays;
+   rejected datagrams get their reason from ``listener.codec`` itself,
+2. the start of the capture goes through the exact pipeline, datagram by datagram, only until every
    sender's stream has started and nothing is held (a handful of datagrams),
-4. the rest is checked (each stream continues in sequence, no gap, no reordering, epochs present),
-   the STROBE clock is advanced in compiled code (:mod:`tools.fast_clock`: the sensor-set "now" of
-   every arrival, for the listener's ``epoch_future`` and stale-output rules), the measurements are
-   packed into ``sfa.batch`` arrays,
+3. the rest is checked (each stream continues in sequence, no gap, no reordering, epochs present: the
+   ingest pass's notes), and one compiled pass advances the STROBE clock and dates the measurements
+   against it (:func:`tools.fast_clock.run_clock`: the sensor-set "now" of every arrival, for the
+   listener's ``epoch_future`` and stale-output rules),
+4. GNSS fixes go to the track's frame; rejected measurements are dropped from the packed rows,
 5. the filter runs from the exact pipeline's filter object: compiled (:func:`tools.fast_loop.run_segment`:
    the kernels plus TrackFilter's scoring, pruning and standstill reversal hypotheses) while every
    hypothesis is on one line, and ``TrackFilter.process`` itself for the measurements where the filter
    branches at a junction, keeps hypotheses on several lines, re-initialises (GROUND TRUTH) or applies
-   its time-jump rule; the state goes back and forth between the two through the filter object.
+   its time-jump rule; the state goes back and forth between the two through the filter object,
+6. the result columns (estimates as sent, per-measurement updates, lat/lon on the line, counters) are
+   written in one compiled pass over the filter's output rows.
 
 When any condition fails it returns None (and :func:`try_fast_replay` says why): the caller runs the
 exact replay instead. What the result does not simulate: retransmissions of the OBCU link after the
