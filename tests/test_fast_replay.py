@@ -149,6 +149,29 @@ def test_reinitialisation_and_a_time_jump_go_through_trackfilter(sim, tmp_path):
     assert 2 <= info.python_steps < 0.2 * fast.datagrams
 
 
+def test_future_epochs_are_rejected_identically(sim, tmp_path):
+    """Epochs far ahead of the STROBE clock (e.g. a flipped exponent bit) are rejected as epoch_future by
+    the listener; the fast path drops the same measurements from its packed rows (updates, estimates
+    and counters as the exact replay's)."""
+    dgrams = list(sim["dgrams"])
+    t0 = dgrams[0][0]
+    imu = [i for i, (t, _, p) in enumerate(dgrams) if p[0] == 1 and t - t0 >= 10.0]
+    out = list(dgrams)
+    for k in (imu[0], imu[1], imu[2000]):
+        t, addr, p = out[k]
+        fields = list(struct.unpack("<BHBB7d", p))
+        fields[-1] += 1.0e5  # the epoch, a day ahead
+        out[k] = (t, addr, struct.pack("<BHBB7d", *fields))
+    cap = tmp_path / "future.pcap"
+    write_capture(cap, out)
+    exact = replay_capture(cap, sim["track"], ReplayOptions())
+    fast, info = try_fast_replay(cap, sim["track"], ReplayOptions())
+    assert info.used, info.reason
+    assert info.exact_prefix < imu[0]  # the rejected rows are in the compiled part
+    assert exact.metrics["input"]["rejected_by_reason"]["epoch_future"] == 3
+    assert_same(exact, fast)
+
+
 def _bad_payloads() -> list[bytes]:
     """One datagram per rejection reason the codec has (none touches the sequence buffers)."""
     imu = struct.pack("<BHBB7d", 1, 7, 0, 7, 0.1, 0.0, -9.8, 0.0, 0.0, 0.0, 1.7e9)

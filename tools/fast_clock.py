@@ -9,6 +9,10 @@ line-by-line transliteration of ``on_strobe``, ``_fit`` and ``_upper_hull`` with
 operations in the same order (Python's ``sum`` of floats is a plain left-to-right sum up to Python 3.11;
 3.12 compensates it, so :func:`clock_supported` sends those interpreters to the Python clock).
 tests/test_fast_clock.py checks the two against each other STROBE by STROBE, steps and jitter included.
+The window is kept in mirrored buffers (each sample twice, ``window`` apart), so it is always one
+contiguous stretch and dropping the oldest sample moves nothing; the sums still run oldest first.
+:func:`run_clock` applies the STROBEs of a capture stretch and dates its measurements in one pass (the
+fast replay's clock stage); :func:`replay_strobes` returns the state after every STROBE instead.
 """
 
 from __future__ import annotations
@@ -30,7 +34,8 @@ C_UNCONFIRMED = 5
 C_CAND = 6  #: candidate offset (meaningful when C_HAS_CAND != 0)
 C_HAS_CAND = 7
 C_N = 8  #: samples in the window
-NSTATE = 9
+C_HEAD = 9  #: slot of the oldest sample in the mirrored sample buffers
+NSTATE = 10
 
 
 def clock_supported() -> bool:
@@ -38,21 +43,20 @@ def clock_supported() -> bool:
     return sys.version_info < (3, 12)
 
 
-@njit(cache=True)
-def _fit(st, smp_t, smp_o, n):
-    ref = smp_t[n - 1]
+@njit(cache=True, _nrt=False)
+def _fit(st, smp_t, smp_o, h0, n, hx, hy):
+    """StrobeClock._fit over the n samples smp_*[h0:h0 + n] (oldest first); hx, hy: hull scratch."""
+    ref = smp_t[h0 + n - 1]
     slope = 0.0
-    intercept = smp_o[0]
+    intercept = smp_o[h0]
     for i in range(1, n):
-        if smp_o[i] > intercept:
-            intercept = smp_o[i]
-    if n >= 10 and smp_t[n - 1] - smp_t[0] >= 20.0:
-        hx = np.empty(n)
-        hy = np.empty(n)
+        if smp_o[h0 + i] > intercept:
+            intercept = smp_o[h0 + i]
+    if n >= 10 and smp_t[h0 + n - 1] - smp_t[h0] >= 20.0:
         m = 0
         for i in range(n):
-            px = smp_t[i]
-            py = smp_o[i]
+            px = smp_t[h0 + i]
+            py = smp_o[h0 + i]
             while m >= 2:
                 x1 = hx[m - 2]
                 y1 = hy[m - 2]
@@ -67,7 +71,7 @@ def _fit(st, smp_t, smp_o, n):
             m += 1
         acc = 0.0
         for i in range(n):
-            acc = acc + smp_t[i]
+            acc = acc + smp_t[h0 + i]
         t_mean = acc / n
         for j in range(m - 1):
             ta = hx[j]
@@ -80,9 +84,9 @@ def _fit(st, smp_t, smp_o, n):
         # max(-1e-3, min(1e-3, slope)) with Python's semantics (the first argument unless the second wins)
         lo = slope if slope < 1e-3 else 1e-3
         slope = lo if lo > -1e-3 else -1e-3
-        intercept = smp_o[0] - slope * (smp_t[0] - ref)
+        intercept = smp_o[h0] - slope * (smp_t[h0] - ref)
         for i in range(1, n):
-            v = smp_o[i] - slope * (smp_t[i] - ref)
+            v = smp_o[h0 + i] - slope * (smp_t[h0 + i] - ref)
             if v > intercept:
                 intercept = v
     st[C_INTERCEPT] = intercept
@@ -90,42 +94,57 @@ def _fit(st, smp_t, smp_o, n):
     st[C_REF] = ref
 
 
-@njit(cache=True)
-def run_strobes(timestamp, now, window, max_step, st, smp_t, smp_o, out):
+@njit(cache=True, _nrt=False)
+def _on_strobe(ts, t, n, window, max_step, st, smp_t, smp_o, hx, hy):
+    """``StrobeClock.on_strobe(ts, t)`` on the state: st, and the n samples from slot st[C_HEAD] of the
+    mirrored buffers smp_t, smp_o (2 * window: sample slot p is also kept at p + window, so the window
+    is always one contiguous stretch and dropping the oldest moves nothing). Returns n."""
+    if math.isfinite(ts) and math.isfinite(t):
+        offset = ts - t
+        accept = True
+        if n > 0:
+            predicted = st[C_INTERCEPT] + st[C_SLOPE] * (t - st[C_REF])
+            if abs(offset - predicted) > max_step:
+                if st[C_HAS_CAND] == 0.0 or abs(offset - st[C_CAND]) > max_step:
+                    st[C_CAND] = offset
+                    st[C_HAS_CAND] = 1.0
+                    st[C_UNCONFIRMED] += 1.0
+                    accept = False
+                else:
+                    n = 0
+                    st[C_RESETS] += 1.0
+        if accept:
+            st[C_HAS_CAND] = 0.0
+            head = int(st[C_HEAD])
+            if n == window:  # deque(maxlen=window).append drops the oldest
+                head += 1
+                if head == window:
+                    head = 0
+                n -= 1
+            p = head + n
+            if p >= window:
+                p -= window
+            smp_t[p] = t
+            smp_o[p] = offset
+            smp_t[p + window] = t
+            smp_o[p + window] = offset
+            n += 1
+            st[C_HEAD] = head
+            st[C_STROBES] += 1.0
+            _fit(st, smp_t, smp_o, head, n, hx, hy)
+    return n
+
+
+@njit(cache=True, _nrt=False)
+def run_strobes(timestamp, now, window, max_step, st, smp_t, smp_o, hx, hy, out):
     """Apply STROBEs (sensor-set ``timestamp[k]`` received at ``now[k]``) to the clock state.
 
-    ``st``: scalar state (slots C_*); ``smp_t``/``smp_o``: the window's samples, oldest first, ``st[C_N]``
-    of them (capacity ``window``). ``out[k]``: (synced, intercept, slope, ref) after STROBE k."""
+    ``st``: scalar state (slots C_*); ``smp_t``/``smp_o``: the window's samples, oldest first from slot
+    ``st[C_HEAD]``, ``st[C_N]`` of them (mirrored buffers of 2 * ``window``); hx, hy: scratch (window).
+    ``out[k]``: (synced, intercept, slope, ref) after STROBE k."""
     n = int(st[C_N])
     for k in range(timestamp.shape[0]):
-        ts = timestamp[k]
-        t = now[k]
-        if math.isfinite(ts) and math.isfinite(t):
-            offset = ts - t
-            accept = True
-            if n > 0:
-                predicted = st[C_INTERCEPT] + st[C_SLOPE] * (t - st[C_REF])
-                if abs(offset - predicted) > max_step:
-                    if st[C_HAS_CAND] == 0.0 or abs(offset - st[C_CAND]) > max_step:
-                        st[C_CAND] = offset
-                        st[C_HAS_CAND] = 1.0
-                        st[C_UNCONFIRMED] += 1.0
-                        accept = False
-                    else:
-                        n = 0
-                        st[C_RESETS] += 1.0
-            if accept:
-                st[C_HAS_CAND] = 0.0
-                if n == window:  # deque(maxlen=window).append drops the oldest
-                    for i in range(n - 1):
-                        smp_t[i] = smp_t[i + 1]
-                        smp_o[i] = smp_o[i + 1]
-                    n -= 1
-                smp_t[n] = t
-                smp_o[n] = offset
-                n += 1
-                st[C_STROBES] += 1.0
-                _fit(st, smp_t, smp_o, n)
+        n = _on_strobe(timestamp[k], now[k], n, window, max_step, st, smp_t, smp_o, hx, hy)
         out[k, 0] = 1.0 if n > 0 else 0.0
         out[k, 1] = st[C_INTERCEPT]
         out[k, 2] = st[C_SLOPE]
@@ -133,11 +152,47 @@ def run_strobes(timestamp, now, window, max_step, st, smp_t, smp_o, out):
     st[C_N] = n
 
 
-def replay_strobes(clock, timestamp: np.ndarray, now: np.ndarray) -> np.ndarray:
-    """Advance ``clock`` (a StrobeClock) by the STROBEs as ``on_strobe`` would, in compiled code.
+@njit(cache=True, _nrt=False)
+def run_clock(
+    s_row, s_ts, s_time, m_row, m_time, t_s, window, max_step, max_future, stale_before, st, smp_t, smp_o,
+    hx, hy, fresh_min, future,
+):  # fmt: skip
+    """The STROBEs (datagram ``s_row``, timestamp ``s_ts``, arrival ``s_time``) and the measurements
+    (datagram ``m_row``, arrival ``m_time``, epoch ``t_s``) of one capture stretch, in datagram order.
 
-    Returns (k + 1, 4): row 0 the state before the first STROBE, row j + 1 after STROBE j, each as
-    (synced, intercept, slope, ref). The clock object is left exactly as the STROBEs would leave it."""
+    Per measurement, with the clock as the STROBEs before it left it (``StrobeClock.to_sensor_time`` of its
+    arrival: sensor_now; NaN before any STROBE): ``future[j]``: the listener rejects it as epoch_future
+    (t_s > sensor_now + max_future); ``fresh_min[j]``: sensor_now - stale_before (estimates with an older
+    epoch are stale, not sent). Every STROBE is applied (those after the last measurement too).
+    Returns the number of future epochs."""
+    n = int(st[C_N])
+    si = 0
+    n_s = s_row.shape[0]
+    n_future = 0
+    for j in range(m_row.shape[0]):
+        r = m_row[j]
+        while si < n_s and s_row[si] < r:
+            n = _on_strobe(s_ts[si], s_time[si], n, window, max_step, st, smp_t, smp_o, hx, hy)
+            si += 1
+        now = m_time[j]
+        if n > 0:
+            sn = now + (st[C_INTERCEPT] + st[C_SLOPE] * (now - st[C_REF]))  # as sensor_now
+        else:
+            sn = math.nan
+        fut = t_s[j] > sn + max_future
+        future[j] = fut
+        if fut:
+            n_future += 1
+        fresh_min[j] = sn - stale_before
+    while si < n_s:
+        n = _on_strobe(s_ts[si], s_time[si], n, window, max_step, st, smp_t, smp_o, hx, hy)
+        si += 1
+    st[C_N] = n
+    return n_future
+
+
+def _state_of(clock):
+    """(window, st, smp_t, smp_o, hx, hy): a StrobeClock's state as run_strobes / run_clock read it."""
     window = int(clock._cfg.window_strobes)
     samples = list(clock._samples)
     st = np.zeros(NSTATE)
@@ -151,13 +206,39 @@ def replay_strobes(clock, timestamp: np.ndarray, now: np.ndarray) -> np.ndarray:
         st[C_CAND] = clock._candidate
         st[C_HAS_CAND] = 1.0
     st[C_N] = len(samples)
-    smp_t = np.zeros(max(window, 1))
-    smp_o = np.zeros(max(window, 1))
+    st[C_HEAD] = 0
+    size = max(window, 1)
+    smp_t = np.zeros(2 * size)
+    smp_o = np.zeros(2 * size)
     for i, (t, o) in enumerate(samples):
-        smp_t[i] = t
-        smp_o[i] = o
+        smp_t[i] = smp_t[i + size] = t
+        smp_o[i] = smp_o[i + size] = o
+    return window, st, smp_t, smp_o, np.zeros(size), np.zeros(size)
+
+
+def _set_state(clock, window, st, smp_t, smp_o) -> None:
+    """Leave ``clock`` exactly as the compiled STROBEs left the state."""
+    n = int(st[C_N])
+    h = int(st[C_HEAD])
+    samples = zip(smp_t[h : h + n].tolist(), smp_o[h : h + n].tolist(), strict=True)
+    clock._samples = deque(samples, maxlen=window)
+    clock._slope = float(st[C_SLOPE])
+    clock._ref_now = float(st[C_REF])
+    clock._intercept = float(st[C_INTERCEPT])
+    clock.resets = int(st[C_RESETS])
+    clock.strobes = int(st[C_STROBES])
+    clock.unconfirmed = int(st[C_UNCONFIRMED])
+    clock._candidate = float(st[C_CAND]) if st[C_HAS_CAND] != 0.0 else None
+
+
+def replay_strobes(clock, timestamp: np.ndarray, now: np.ndarray) -> np.ndarray:
+    """Advance ``clock`` (a StrobeClock) by the STROBEs as ``on_strobe`` would, in compiled code.
+
+    Returns (k + 1, 4): row 0 the state before the first STROBE, row j + 1 after STROBE j, each as
+    (synced, intercept, slope, ref). The clock object is left exactly as the STROBEs would leave it."""
+    window, st, smp_t, smp_o, hx, hy = _state_of(clock)
     out = np.zeros((timestamp.shape[0] + 1, 4))
-    out[0] = (1.0 if samples else 0.0, clock._intercept, clock._slope, clock._ref_now)
+    out[0] = (1.0 if st[C_N] > 0 else 0.0, clock._intercept, clock._slope, clock._ref_now)
     run_strobes(
         np.ascontiguousarray(timestamp, dtype=np.float64),
         np.ascontiguousarray(now, dtype=np.float64),
@@ -166,18 +247,30 @@ def replay_strobes(clock, timestamp: np.ndarray, now: np.ndarray) -> np.ndarray:
         st,
         smp_t,
         smp_o,
+        hx,
+        hy,
         out[1:],
     )
-    n = int(st[C_N])
-    clock._samples = deque(zip(smp_t[:n].tolist(), smp_o[:n].tolist(), strict=True), maxlen=window)
-    clock._slope = float(st[C_SLOPE])
-    clock._ref_now = float(st[C_REF])
-    clock._intercept = float(st[C_INTERCEPT])
-    clock.resets = int(st[C_RESETS])
-    clock.strobes = int(st[C_STROBES])
-    clock.unconfirmed = int(st[C_UNCONFIRMED])
-    clock._candidate = float(st[C_CAND]) if st[C_HAS_CAND] != 0.0 else None
+    _set_state(clock, window, st, smp_t, smp_o)
     return out
+
+
+def replay_clock(clock, strobes, meas, max_future: float, stale_before: float):
+    """Advance ``clock`` (a StrobeClock) by the STROBEs ``strobes`` = (datagram index, timestamp, arrival)
+    and date the measurements ``meas`` = (datagram index, arrival, epoch) against it on the way, as
+    :func:`replay_strobes` and :func:`sensor_now` would (one compiled pass, no per-measurement state rows).
+
+    Returns (fresh_min, future, number of future epochs): see :func:`run_clock`."""
+    window, st, smp_t, smp_o, hx, hy = _state_of(clock)
+    m_row = meas[0]
+    fresh_min = np.empty(m_row.shape[0])
+    future = np.empty(m_row.shape[0], dtype=np.bool_)
+    n_future = run_clock(
+        *strobes, *meas, window, float(clock._cfg.max_step_s), float(max_future), float(stale_before),
+        st, smp_t, smp_o, hx, hy, fresh_min, future,
+    )  # fmt: skip
+    _set_state(clock, window, st, smp_t, smp_o)
+    return fresh_min, future, int(n_future)
 
 
 def sensor_now(params: np.ndarray, now: np.ndarray) -> np.ndarray:
@@ -189,4 +282,4 @@ def sensor_now(params: np.ndarray, now: np.ndarray) -> np.ndarray:
     return np.where(params[:, 0] != 0.0, out, math.nan)
 
 
-__all__ = ["clock_supported", "replay_strobes", "run_strobes", "sensor_now"]
+__all__ = ["clock_supported", "replay_clock", "replay_strobes", "run_clock", "run_strobes", "sensor_now"]

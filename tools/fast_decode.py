@@ -3,7 +3,9 @@
 The allowed forms (``INPUT_FORMS``), their field order (``input_layout``) and every field's range
 (``FIELD_RANGES``) are read from :mod:`listener.codec` when this module is imported, so the compiled
 check cannot drift from the codec: exact length for the form, then every field inside its range
-(NaN and infinities fail the comparison, as in the codec's chained comparisons). A datagram the
+(NaN and infinities fail the comparison, as in the codec's chained comparisons). An open lower bound
+``lo < x`` is checked as the closed ``nextafter(lo, +inf) <= x``, the same set of doubles (a branch-free
+check: one table lookup and two comparisons per field). A datagram the
 compiled pass rejects is handed to ``listener.codec.decode_input`` for its exact reason, so the
 rejection counters are those of the listener by construction; the compiled pass only has to never
 accept what the codec rejects (checked by tests/test_fast_replay.py with hypothesis).
@@ -11,34 +13,37 @@ accept what the codec rejects (checked by tests/test_fast_replay.py with hypothe
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
-from numba import njit
 
 from listener.codec import FIELD_RANGES, INPUT_FORMS, input_layout
+from tools.fast_ingest import MAX_FIELDS, decode_many  # compiled with the fast replay's single pass
 
-MAX_FIELDS = 9  #: most payload fields of any form (GPS: 2 ints + 5 doubles; IMU: 7 doubles)
 _TABLE = 16 * 8 * 8  #: index = type * 64 + n_int * 8 + n_double (type < 16, n_int < 8, n_double < 8)
 
 
 def _build_tables():
     size = np.zeros(_TABLE, dtype=np.int64)  # 0: no such form
-    lo = np.zeros((_TABLE, MAX_FIELDS))
+    lo = np.zeros((_TABLE, MAX_FIELDS))  # inclusive lower bound
     hi = np.zeros((_TABLE, MAX_FIELDS))
-    lo_open = np.zeros((_TABLE, MAX_FIELDS), dtype=np.int64)
     for stype, n_int, n_double in INPUT_FORMS:
         idx = int(stype) * 64 + n_int * 8 + n_double
         size[idx] = 5 + 4 * n_int + 8 * n_double
         for j, name in enumerate(input_layout(stype, n_int, n_double)):
             r = FIELD_RANGES[name]
-            lo[idx, j] = r.lo
+            lo[idx, j] = _inclusive(float(r.lo)) if r.lo_open else r.lo
             hi[idx, j] = r.hi
-            lo_open[idx, j] = 1 if r.lo_open else 0
-    return size, lo, hi, lo_open
+    return size, lo, hi
 
 
-FORM_SIZE, FIELD_LO, FIELD_HI, FIELD_LO_OPEN = _build_tables()
+def _inclusive(lo: float) -> float:
+    """The smallest double x with lo < x (no double is above +inf: NaN, which no x reaches)."""
+    return math.nan if lo == math.inf else math.nextafter(lo, math.inf)
+
+
+FORM_SIZE, FIELD_LO, FIELD_HI = _build_tables()  #: FIELD_LO: inclusive (open bounds moved up one double)
 
 
 @dataclass(frozen=True)
@@ -53,64 +58,6 @@ class DecodedBatch:
     values: np.ndarray  #: (n, MAX_FIELDS) float64: ints then doubles, wire order; NaN beyond the form
 
 
-@njit(cache=True)
-def _i32le(d, i):
-    u = np.int64(d[i]) | (np.int64(d[i + 1]) << 8) | (np.int64(d[i + 2]) << 16) | (np.int64(d[i + 3]) << 24)
-    if u >= 2147483648:
-        u -= 4294967296
-    return u
-
-
-@njit(cache=True)
-def decode_many(d, offset, length, form_size, lo, hi, lo_open, ok, stype, seq, n_int, n_double, values):
-    """Decode every datagram d[offset[k]:offset[k]+length[k]] (little-endian, the protocol's order)."""
-    buf = np.empty(8, dtype=np.uint8)
-    as_f64 = buf.view(np.float64)  # reinterpret 8 little-endian bytes (the host is little-endian)
-    for k in range(offset.shape[0]):
-        o = offset[k]
-        n = length[k]
-        ok[k] = False
-        values[k, :] = np.nan
-        if n < 5:
-            stype[k] = -1
-            seq[k] = -1
-            n_int[k] = -1
-            n_double[k] = -1
-            continue
-        t = np.int64(d[o])
-        ni = np.int64(d[o + 3])
-        nd = np.int64(d[o + 4])
-        stype[k] = t
-        seq[k] = np.int64(d[o + 1]) | (np.int64(d[o + 2]) << 8)
-        n_int[k] = ni
-        n_double[k] = nd
-        if t >= 16 or ni >= 8 or nd >= 8:
-            continue
-        idx = t * 64 + ni * 8 + nd
-        if form_size[idx] == 0 or form_size[idx] != n:
-            continue
-        good = True
-        p = o + 5
-        for j in range(ni + nd):
-            if j < ni:
-                x = np.float64(_i32le(d, p))
-                p += 4
-            else:
-                for b in range(8):
-                    buf[b] = d[p + b]
-                x = as_f64[0]
-                p += 8
-            values[k, j] = x
-            if lo_open[idx, j] != 0:
-                inside = lo[idx, j] < x <= hi[idx, j]
-            else:
-                inside = lo[idx, j] <= x <= hi[idx, j]
-            if not inside:
-                good = False
-                break
-        ok[k] = good
-
-
 def decode_batch(data: np.ndarray, offset: np.ndarray, length: np.ndarray) -> DecodedBatch:
     """Run :func:`decode_many` over the datagrams of a scanned capture (or any byte buffer)."""
     n = offset.shape[0]
@@ -120,9 +67,7 @@ def decode_batch(data: np.ndarray, offset: np.ndarray, length: np.ndarray) -> De
     ni = np.zeros(n, dtype=np.int64)
     nd = np.zeros(n, dtype=np.int64)
     values = np.empty((n, MAX_FIELDS))
-    decode_many(
-        data, offset, length, FORM_SIZE, FIELD_LO, FIELD_HI, FIELD_LO_OPEN, ok, stype, seq, ni, nd, values
-    )
+    decode_many(data, offset, length, FORM_SIZE, FIELD_LO, FIELD_HI, ok, stype, seq, ni, nd, values)
     return DecodedBatch(ok, stype, seq, ni, nd, values)
 
 

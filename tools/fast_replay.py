@@ -6,21 +6,25 @@ known in advance: every stream in order, every measurement dated by its own epoc
 releasing each measurement at once (``merge.hold_s = 0``). :func:`fast_replay` checks that this is so
 and then runs the capture in compiled code:
 
-1. the pcap is memory-mapped and walked in a numba loop (:mod:`tools.fast_pcap`; classic pcap,
-   Ethernet, IPv4, UDP at fixed offsets),
-2. INPUT payloads are decoded in one compiled pass driven by listener.codec's own tables
-   (:mod:`tools.fast_decode`); rejected ones get their reason from ``listener.codec`` itself,
-3. the start of the capture goes through the exact pipeline, datagram by datagram, only until every
+1. one compiled pass over the memory-mapped pcap (:mod:`tools.fast_ingest`; classic pcap, Ethernet,
+   IPv4, UDP at fixed offsets) walks the records, decodes every INPUT payload against listener.codec's
+   own tables (:mod:`tools.fast_decode`), notes the stream table and the datagrams that would need the
+   sequence buffer or STROBE dating, and packs the measurements straight into ``sfa.batch`` arrays;
+   rejected datagrams get their reason from ``listener.codec`` itself,
+2. the start of the capture goes through the exact pipeline, datagram by datagram, only until every
    sender's stream has started and nothing is held (a handful of datagrams),
-4. the rest is checked (each stream continues in sequence, no gap, no reordering, epochs present),
-   the STROBE clock is advanced in compiled code (:mod:`tools.fast_clock`: the sensor-set "now" of
-   every arrival, for the listener's ``epoch_future`` and stale-output rules), the measurements are
-   packed into ``sfa.batch`` arrays,
+3. the rest is checked (each stream continues in sequence, no gap, no reordering, epochs present: the
+   ingest pass's notes), and one compiled pass advances the STROBE clock and dates the measurements
+   against it (:func:`tools.fast_clock.run_clock`: the sensor-set "now" of every arrival, for the
+   listener's ``epoch_future`` and stale-output rules),
+4. GNSS fixes go to the track's frame; rejected measurements are dropped from the packed rows,
 5. the filter runs from the exact pipeline's filter object: compiled (:func:`tools.fast_loop.run_segment`:
    the kernels plus TrackFilter's scoring, pruning and standstill reversal hypotheses) while every
    hypothesis is on one line, and ``TrackFilter.process`` itself for the measurements where the filter
    branches at a junction, keeps hypotheses on several lines, re-initialises (GROUND TRUTH) or applies
-   its time-jump rule; the state goes back and forth between the two through the filter object.
+   its time-jump rule; the state goes back and forth between the two through the filter object,
+6. the result columns (estimates as sent, per-measurement updates, lat/lon on the line, counters) are
+   written in one compiled pass over the filter's output rows.
 
 When any condition fails it returns None (and :func:`try_fast_replay` says why): the caller runs the
 exact replay instead. What the result does not simulate: retransmissions of the OBCU link after the
@@ -44,13 +48,15 @@ from numba import njit
 from listener.pipeline import to_measurement
 from sfa import layout as L
 from sfa.layout import Outcome
-from tools.fast_loop import STOP_AFTER, STOP_UNDONE, interp_many, run_segment
+from tools.fast_loop import STOP_AFTER, STOP_UNDONE, run_segment
 
 #: datagrams replayed through the exact pipeline at most before the hand-over to compiled code
 MAX_EXACT_PREFIX = 200_000
 _KIND_NAME = {1: "imu", 2: "odo", 3: "gps", 8: "init"}
 _TYPE_NAME = {1: "imu", 2: "odometer", 3: "gps", 8: "ground_truth", 9: "strobe", 10: "stop"}
 _KIND_OBJ = np.array([_KIND_NAME.get(k, "?") for k in range(16)], dtype=object)  # Update.kind by code
+_KIND_CODE = {name: code for code, name in _KIND_NAME.items()}
+_INT_COLUMNS = ("seq", "retransmit", "status", "line_id")  #: int64 estimate columns (the others float64)
 
 
 @dataclass(frozen=True)
@@ -83,16 +89,24 @@ def try_fast_replay(capture_path, track, options=None):
     why = _options_reason(options)
     if why:
         return None, FastReplayInfo(False, why)
-    from tools.fast_pcap import scan_capture
+    from tools.fast_decode import FIELD_HI, FIELD_LO, FORM_SIZE
+    from tools.fast_ingest import R_DATAGRAMS, ingest_capture
 
     t0 = time.perf_counter()
-    scan = scan_capture(capture_path, options.port)
-    scan_s = time.perf_counter() - t0
-    if isinstance(scan, str):
-        return None, FastReplayInfo(False, f"capture: {scan}")
-    if scan.time_s.size == 0:
+    inp = options.config.input
+    got = ingest_capture(
+        capture_path,
+        options.port,
+        inp.per_type_sequence,
+        inp.max_streams,
+        (FORM_SIZE, FIELD_LO, FIELD_HI),
+    )
+    ingest_s = time.perf_counter() - t0
+    if isinstance(got, str):
+        return None, FastReplayInfo(False, f"capture: {got}")
+    if got.res[R_DATAGRAMS] == 0:
         return None, FastReplayInfo(False, "no datagram to the listener port")
-    return _replay_scanned(scan, track, options, scan_s)
+    return _replay_ingested(got, track, options, ingest_s)
 
 
 def _options_reason(options) -> str:
@@ -191,65 +205,117 @@ class _Prefix:
         )
 
 
-def _gps_of(dec, i):
-    """(lat, lon, fix quality) of a decoded GPS datagram, as tools.replay records it."""
-    v = dec.values[i]
-    ni = int(dec.n_int[i])
-    fq = int(v[0]) if ni == 2 else -1
-    return float(v[ni]), float(v[ni + 1]), fq
+# ---------------------------------------------------------------------------------------- result rows
+@njit(cache=True, _nrt=False)
+def _result_rows(
+    out_f, out_i, line_row, m_time, kind, t_s, z, seq0, he, hu,
+    e_epoch, e_s, e_seq, e_arr, e_speed, e_sig, e_lo, e_hi, e_status, e_line,
+    u_t, u_out, u_nis, pairs, info,
+):  # fmt: skip
+    """The compiled part of the result, as tools.replay records it, in one pass over the measurements.
+
+    Estimate columns e_* from row ``he`` on (one row per measurement whose output was sent, ``out_i[3]``;
+    not retransmit, zero already, nor lat/lon, interpolated afterwards per line); update columns u_*
+    from row ``hu`` on; ``pairs`` (16 * 16) counts (kind, outcome). ``info``: (index of the last sent
+    measurement or -1, smallest and largest line of the sent rows)."""
+    k = he
+    last = -1
+    lo_line = 0
+    hi_line = -1
+    for i in range(kind.shape[0]):
+        oc = out_i[0, i]
+        u_t[hu + i] = t_s[i]
+        u_out[hu + i] = oc
+        u_nis[hu + i] = out_f[4, i]
+        pairs[kind[i] * 16 + oc] += 1
+        if out_i[3, i] == 1:
+            s = out_f[1, i]
+            sig = out_f[3, i]
+            e_epoch[k] = out_f[0, i]
+            e_s[k] = s
+            e_seq[k] = (seq0 + (k - he)) & 0xFFFF
+            e_arr[k] = m_time[i]
+            e_speed[k] = out_f[2, i]
+            e_sig[k] = sig
+            e_lo[k] = s - z * sig
+            e_hi[k] = s + z * sig
+            e_status[k] = out_i[1, i]
+            ln = line_row[i]
+            e_line[k] = ln
+            if last < 0 or ln < lo_line:
+                lo_line = ln
+            if last < 0 or ln > hi_line:
+                hi_line = ln
+            last = i
+            k += 1
+    info[0] = last
+    info[1] = lo_line
+    info[2] = hi_line
 
 
-# ---------------------------------------------------------------------------------------- streams
-@njit(cache=True)
-def _stream_table(key, ok, n, cap):
-    """Distinct stream keys of the valid datagrams [0, n) and the row of each one's first datagram
-    (at most ``cap`` streams: returns -1 as the count beyond that)."""
-    keys = np.empty(cap, dtype=np.int64)
-    first = np.empty(cap, dtype=np.int64)
-    m = 0
-    for r in range(n):
-        if not ok[r]:
+@njit(cache=True, _nrt=False)
+def _latlon(ts, lat, lon, s, line, lid, every, out_lat, out_lon):
+    """lat/lon at arc length ``s`` on the line with vertices at ``ts`` (rows of ``line`` == lid, or every
+    row): for s within [ts[0], ts[-1]] ``sfa.kernels.interp_at`` for both (the same segment as its binary
+    search, found from the previous row's, and the same expression), NaN otherwise (as
+    tools.fast_loop.interp_many)."""
+    n = ts.shape[0]
+    first = ts[0]
+    end = ts[n - 1]
+    i = 0
+    for r in range(s.shape[0]):
+        if not every and line[r] != lid:
             continue
-        k = key[r]
-        found = False
-        for q in range(m):
-            if keys[q] == k:
-                found = True
-                break
-        if not found:
-            if m == cap:
-                return keys, first, -1
-            keys[m] = k
-            first[m] = r
-            m += 1
-    return keys, first, m
-
-
-@njit(cache=True)
-def _first_break(key, ok, seq, h, n, keys, m):
-    """First valid row >= h whose SEQ does not continue its stream by exactly one (16 bit), or -1."""
-    last = np.full(m, -1, dtype=np.int64)
-    for r in range(n):
-        if not ok[r]:
+        x = s[r]
+        if not (first <= x <= end):
+            out_lat[r] = np.nan
+            out_lon[r] = np.nan
             continue
-        q = 0
-        while keys[q] != key[r]:
-            q += 1
-        if r >= h and (last[q] < 0 or seq[r] != (last[q] + 1) & 0xFFFF):
-            return r
-        last[q] = seq[r]
-    return -1
+        if x <= first:
+            out_lat[r] = lat[0]
+            out_lon[r] = lon[0]
+            continue
+        if x >= end:
+            out_lat[r] = lat[n - 1]
+            out_lon[r] = lon[n - 1]
+            continue
+        # the segment i with ts[i] <= x < ts[i + 1] (searchsorted(ts, x, "right") - 1 for ts[0] < x < ts[-1])
+        if not (ts[i] <= x < ts[i + 1]):
+            if i + 2 <= n - 1 and ts[i + 1] <= x < ts[i + 2]:
+                i += 1
+            else:
+                i = np.searchsorted(ts, x, side="right") - 1
+                if i < 0:
+                    i = 0
+                if i > n - 2:
+                    i = n - 2
+        ds = ts[i + 1] - ts[i]
+        if ds <= 0.0:
+            out_lat[r] = lat[i]
+            out_lon[r] = lon[i]
+        else:
+            out_lat[r] = lat[i] + (lat[i + 1] - lat[i]) * (x - ts[i]) / ds
+            out_lon[r] = lon[i] + (lon[i + 1] - lon[i]) * (x - ts[i]) / ds
 
 
 # ---------------------------------------------------------------------------------------- main path
-def _replay_scanned(scan, track, options, scan_s: float = 0.0):
+def _replay_ingested(got, track, options, ingest_s: float = 0.0):
     from listener.codec import DecodeError, decode_input
-    from tools.fast_clock import clock_supported, replay_strobes, sensor_now
-    from tools.fast_decode import decode_batch
-    from tools.fast_pack import EPOCH_DOUBLES
-    from tools.fast_pcap import SKIP_REASONS, ipv4_text
+    from tools.fast_clock import clock_supported, replay_clock
+    from tools.fast_ingest import (
+        R_BAD,
+        R_FRAMES,
+        R_LAST_BREAK,
+        R_LAST_FIRST,
+        R_NO_EPOCH,
+        R_STOP_FRAME,
+        R_STOPPED,
+        R_STREAMS,
+        R_TYPES,
+    )
+    from tools.fast_pcap import SKIP_REASONS
 
-    timing = {"pcap scan": scan_s}
+    timing = {"ingest": ingest_s}
     tick = time.perf_counter()
 
     def lap(name: str) -> None:
@@ -258,36 +324,26 @@ def _replay_scanned(scan, track, options, scan_s: float = 0.0):
         timing[name] = timing.get(name, 0.0) + now - tick
         tick = now
 
-    dec = decode_batch(scan.data, scan.offset, scan.length)
-    n_all = scan.time_s.size
-    stop_rows = np.flatnonzero(dec.ok & (dec.stype == 10))
-    n = int(stop_rows[0]) + 1 if stop_rows.size else n_all  # the replay ends at a released STOP
-    lap("decode")
-
-    def payload(i: int) -> bytes:
-        o = int(scan.offset[i])
-        return bytes(scan.data[o : o + int(scan.length[i])])
-
-    def addr(i: int):
-        return (ipv4_text(scan.src_ip[i]), int(scan.src_port[i]))
-
-    per_type = options.config.input.per_type_sequence
-    type_part = dec.stype & 0xFF if per_type else 0
-    key_all = (scan.src_ip.astype(np.int64) << 24) | (scan.src_port << 8) | type_part
-    keys, first, m_streams = _stream_table(key_all, dec.ok, n, options.config.input.max_streams)
-    if m_streams < 0:
+    res = got.res
+    n = got.rows  # the replay ends at a released STOP
+    row_code = got.row_code
+    if res[R_STREAMS] < 0:
         return None, _info(False, "more streams than the listener tracks", 0)
     # the exact pipeline runs until every stream has started (start-up hold released)
-    min_prefix = int(first[:m_streams].max()) + 1 if m_streams else 0
-    lap("stream table")
+    min_prefix = int(res[R_LAST_FIRST]) + 1
 
     # 1. exact prefix
     prefix = _Prefix(track, options)
     h = 0
+    gp = 0  # next GNSS row
     limit = min(n, MAX_EXACT_PREFIX)
     while h < limit:
-        gps = _gps_of(dec, h) if dec.ok[h] and dec.stype[h] == 3 else None
-        prefix.feed(float(scan.time_s[h]), addr(h), payload(h), gps)
+        gps = None
+        if row_code[h] == 3:
+            gps = (float(got.g_lat[gp]), float(got.g_lon[gp]), int(got.g_fq[gp]))
+            gp += 1
+        t, addr, payload = got.datagram(h)
+        prefix.feed(t, addr, payload, gps)
         h += 1
         if prefix.pipe.stopped:
             break
@@ -302,41 +358,47 @@ def _replay_scanned(scan, track, options, scan_s: float = 0.0):
         why = f"no hand-over point in the first {limit} datagrams (sequence or merge holds)"
         return None, _info(False, why, h)
 
-    # 2. the rest must be a continuation the pipeline releases at once, in order
-    rows = np.arange(h, n)
-    ok = dec.ok[h:n]
-    st = dec.stype[h:n]
-    nd = dec.n_double[h:n]
-    for t, need in (*EPOCH_DOUBLES.items(), (8, 5)):
-        if np.any(ok & (st == t) & (nd != need)):
+    # 2. the rest must be a continuation the pipeline releases at once, in order (the ingest pass noted
+    # the last datagram breaking each rule)
+    for t in (1, 2, 3, 8):
+        if res[R_NO_EPOCH + t] >= h:
             return None, _info(False, f"{_TYPE_NAME[t]} datagrams without epoch (need STROBE dating)", h)
-    if np.any(ok & (st == 10) & (rows != n - 1)):  # pragma: no cover - n ends at the first STOP
-        return None, _info(False, "STOP before the end", h)
-    if _first_break(key_all, dec.ok, dec.seq, h, n, keys, m_streams) >= 0:
+    if res[R_LAST_BREAK] >= h:
         why = "a stream with a gap, a duplicate or reordering (needs the sequence buffer)"
         return None, _info(False, why, h)
     if not clock_supported():
         return None, _info(False, "Python >= 3.12 sums floats compensated (STROBE clock fit)", h)
+    j0 = int(np.searchsorted(got.m_row, h))
+    g0 = int(np.searchsorted(got.g_row, h))
+    s0 = int(np.searchsorted(got.s_row, h))
+    mrows, m_time, kind, t_s, vals = (a[j0:] for a in (got.m_row, got.m_time, got.kind, got.t_s, got.vals))
     lap("checks")
 
-    # 3. the STROBE clock: the sensor-set "now" at every measurement's arrival
-    srows = rows[ok & (st == 9)]
-    params = replay_strobes(pipe.clock, dec.values[srows, 0], scan.time_s[srows])
-    meas_all = rows[ok & ((st == 1) | (st == 2) | (st == 3) | (st == 8))]
-    sn = sensor_now(params[np.searchsorted(srows, meas_all)], scan.time_s[meas_all])
+    # 3. the STROBE clock: the sensor-set "now" at every measurement's arrival (epoch_future rejection,
+    # the stale-output bound)
+    cfg = options.config
+    stale_before = cfg.link.max_output_age_s + cfg.merge.hold_s
+    fresh_min, future, n_future = replay_clock(
+        pipe.clock,
+        (got.s_row[s0:], got.s_ts[s0:], got.s_time[s0:]),
+        (mrows, m_time, t_s),
+        cfg.clock.max_future_s,
+        stale_before,
+    )
     lap("clock")
 
-    from tools.fast_pack import pack_rows
-
-    kind_all, t_all, vals_all = pack_rows(dec, meas_all, track)
-    future = t_all > sn + options.config.clock.max_future_s  # Pipeline._date: epoch_future rejection
-    if np.any(future):
+    # GNSS fixes to the track's local frame (fix quality 0 stays (0, 0): the filter counts it as no fix)
+    gq = np.flatnonzero(got.g_fq[g0:] != 0.0) + g0
+    if gq.size:
+        e, nn = track.to_local(got.g_lat[gq], got.g_lon[gq])
+        gm = got.g_meas[gq]
+        got.vals[gm, 0] = np.asarray(e, dtype=np.float64)
+        got.vals[gm, 1] = np.asarray(nn, dtype=np.float64)
+    if n_future:  # Pipeline._date: epoch_future rejection
         keep = ~future
-        mrows, kind, t_s, vals, sn = meas_all[keep], kind_all[keep], t_all[keep], vals_all[keep], sn[keep]
-    else:
-        mrows, kind, t_s, vals = meas_all, kind_all, t_all, vals_all
-    stale_before = options.config.link.max_output_age_s + options.config.merge.hold_s
-    fresh_min = sn - stale_before  # NaN before the first STROBE: never stale
+        mrows, m_time, kind, t_s, vals, fresh_min = (
+            a[keep] for a in (mrows, m_time, kind, t_s, vals, fresh_min)
+        )
     nm = mrows.size
     lap("pack")
 
@@ -356,81 +418,74 @@ def _replay_scanned(scan, track, options, scan_s: float = 0.0):
         if j >= nm:
             break
         i = j
-        r = int(mrows[i])
-        msg = decode_input(payload(r))
+        msg = decode_input(got.datagram(int(mrows[i]))[2])
         upd = filt.process(to_measurement(msg, msg.epoch))
         state.python_row(i, upd, fresh_min[i])
         i += 1
     lap("filter")
 
-    # 5. the result, as tools.replay builds it
+    # 5. the result, as tools.replay builds it: the prefix's rows, then the compiled rows
     from tools.replay import ESTIMATE_COLUMNS, ReplayResult
 
     z = float(filt.config.to_array()[L.K_Z_INTERVAL])
-    send = out_i[3] == 1
-    sent = np.flatnonzero(send)
-    k_out = sent.size
-    s_out = out_f[1][send]
-    sig_out = out_f[3][send]
-    line_out = state.line_row[sent]
-    lat_out = np.full(k_out, math.nan)
-    lon_out = np.full(k_out, math.nan)
-    lines = [int(line_out[0])] if k_out and line_out.min() == line_out.max() else np.unique(line_out).tolist()
-    for lid in lines:
-        if lid < 0:
-            continue
-        sel = slice(None) if len(lines) == 1 else line_out == lid
-        s_sel = s_out[sel]
-        ln = filt._line_arrays(int(lid))
-        if ln.lat_deg is not None:
-            valid = np.ones(s_sel.size, dtype=np.bool_)
-            lat_out[sel] = interp_many(ln.s_m, ln.lat_deg, s_sel, valid)
-            lon_out[sel] = interp_many(ln.s_m, ln.lon_deg, s_sel, valid)
-    link = pipe.link
-    start_seq = options.config.link.start_seq
-    seq_out = (start_seq + link.outputs + np.arange(k_out)) & 0xFFFF
-    fast_cols = {
-        "epoch": out_f[0][send],
-        "arc_length": s_out,
-        "seq": seq_out.astype(np.int64),
-        "retransmit": np.zeros(k_out, dtype=np.int64),
-        "arrival": scan.time_s[mrows[sent]],
-        "speed": out_f[2][send],
-        "sigma": sig_out,
-        "interval_low": s_out - z * sig_out,
-        "interval_high": s_out + z * sig_out,
-        "status": out_i[1][send],
-        "line_id": line_out,
-        "lat": lat_out,
-        "lon": lon_out,
+    k_out = int(np.count_nonzero(out_i[3]))
+    he = len(prefix.est_rows)
+    est = {
+        name: np.empty(he + k_out, dtype=np.int64 if name in _INT_COLUMNS else np.float64)
+        for name in ESTIMATE_COLUMNS
     }
-    int_cols = ("seq", "retransmit", "status", "line_id")
-    est = {}
+    est["retransmit"] = np.zeros(he + k_out, dtype=np.int64)  # no retransmission after the prefix
     for c_i, name in enumerate(ESTIMATE_COLUMNS):
-        dtype = np.int64 if name in int_cols else float
-        head = np.array([r[c_i] for r in prefix.est_rows], dtype=dtype)
-        est[name] = np.concatenate([head, fast_cols[name].astype(dtype, copy=False)])
-
-    kinds = _KIND_OBJ[kind] if nm else np.array([], dtype=object)
-    updates = {
-        "t": np.concatenate([np.array([u[0] for u in prefix.upd], dtype=float), t_s]),
-        "kind": np.concatenate([np.array([u[1] for u in prefix.upd], dtype=object), kinds]),
-        "outcome": np.concatenate([np.array([u[2] for u in prefix.upd], dtype=np.int64), out_i[0]]),
-        "nis": np.concatenate([np.array([u[3] for u in prefix.upd], dtype=float), out_f[4]]),
-    }
-    grows = rows[ok & (st == 3)]
-    gv = dec.values[grows]
-    has_q = dec.n_int[grows] == 2
-    gi = np.arange(grows.size)
-    base = np.where(has_q, 2, 0)
+        est[name][:he] = np.array([r[c_i] for r in prefix.est_rows], dtype=est[name].dtype)
+    hu = len(prefix.upd)
+    updates = {"t": np.empty(hu + nm), "kind": None, "outcome": np.empty(hu + nm, dtype=np.int64)}
+    updates["nis"] = np.empty(hu + nm)
+    for c_i, name in ((0, "t"), (2, "outcome"), (3, "nis")):
+        updates[name][:hu] = np.array([u[c_i] for u in prefix.upd], dtype=updates[name].dtype)
+    pairs = np.zeros(16 * 16, dtype=np.int64)
+    sent_info = np.zeros(3, dtype=np.int64)
+    seq0 = options.config.link.start_seq + pipe.link.outputs
+    _result_rows(
+        out_f, out_i, state.line_row, m_time, kind, t_s, z, seq0, he, hu,
+        *(est[name] for name in ESTIMATE_COLUMNS if name not in ("retransmit", "lat", "lon")),
+        updates["t"], updates["outcome"], updates["nis"], pairs, sent_info,
+    )  # fmt: skip
+    codes = [_KIND_CODE.get(u[1], -1) for u in prefix.upd]
+    if -1 in codes:  # pragma: no cover - TrackFilter's kinds are those of _KIND_NAME
+        head = np.array([u[1] for u in prefix.upd], dtype=object)
+        updates["kind"] = np.concatenate([head, _KIND_OBJ[kind]])
+    else:  # one take over all codes: much cheaper than filling an object array piecewise
+        all_codes = np.empty(hu + nm, dtype=np.intp)
+        all_codes[:hu] = codes
+        all_codes[hu:] = kind
+        updates["kind"] = _KIND_OBJ.take(all_codes)
+    if k_out:
+        s_out = est["arc_length"][he:]
+        lines_out = est["line_id"][he:]
+        lo_line, hi_line = int(sent_info[1]), int(sent_info[2])
+        lines = [lo_line] if lo_line == hi_line else np.unique(lines_out).tolist()
+        arrays = {lid: filt._line_arrays(int(lid)) for lid in lines if lid >= 0}
+        if len(lines) > 1 or not arrays or arrays[lines[0]].lat_deg is None:
+            est["lat"][he:] = math.nan  # rows no line interpolates (one line: _latlon writes every row)
+            est["lon"][he:] = math.nan
+        for lid in lines:
+            if lid < 0:
+                continue
+            ln = arrays[lid]
+            if ln.lat_deg is not None:
+                _latlon(
+                    ln.s_m, ln.lat_deg, ln.lon_deg, s_out, lines_out, int(lid), len(lines) == 1,
+                    est["lat"][he:], est["lon"][he:],
+                )  # fmt: skip
+    gsl = slice(g0, None)
     gps = {
-        "t": np.concatenate([np.array([g[0] for g in prefix.gps_rows], dtype=float), scan.time_s[grows]]),
-        "lat": np.concatenate([np.array([g[1] for g in prefix.gps_rows], dtype=float), gv[gi, base]]),
-        "lon": np.concatenate([np.array([g[2] for g in prefix.gps_rows], dtype=float), gv[gi, base + 1]]),
+        "t": np.concatenate([np.array([g[0] for g in prefix.gps_rows], dtype=float), got.g_time[gsl]]),
+        "lat": np.concatenate([np.array([g[1] for g in prefix.gps_rows], dtype=float), got.g_lat[gsl]]),
+        "lon": np.concatenate([np.array([g[2] for g in prefix.gps_rows], dtype=float), got.g_lon[gsl]]),
         "fix_quality": np.concatenate(
             [
                 np.array([g[3] for g in prefix.gps_rows], dtype=np.int64),
-                np.where(has_q, gv[:, 0], -1.0).astype(np.int64),
+                got.g_fq[gsl].astype(np.int64),
             ]
         ),
     }
@@ -438,20 +493,21 @@ def _replay_scanned(scan, track, options, scan_s: float = 0.0):
 
     # 6. counters: the pipeline's own objects advanced as the exact replay would have advanced them
     c = pipe.counters
-    c["received"] += rows.size
-    for i in rows[~ok]:
-        try:
-            decode_input(payload(int(i)))
-        except DecodeError as exc:
-            c["rejected"] += 1
-            pipe.rejected[str(exc.reason)] += 1
-        else:  # pragma: no cover - the compiled pass rejected what the codec accepts: a bug
-            raise AssertionError(f"fast decoder rejected a valid datagram at index {int(i)}")
-    n_future = int(future.sum())
+    c["received"] += n - h
+    if res[R_BAD]:
+        for r in (np.flatnonzero(row_code[h:] < 0) + h).tolist():
+            try:
+                decode_input(got.datagram(r)[2])
+            except DecodeError as exc:
+                c["rejected"] += 1
+                pipe.rejected[str(exc.reason)] += 1
+            else:  # pragma: no cover - the compiled pass rejected what the codec accepts: a bug
+                raise AssertionError(f"fast decoder rejected a valid datagram at index {r}")
     if n_future:
         c["rejected"] += n_future
         pipe.rejected["epoch_future"] += n_future
-    types = np.bincount(st[ok], minlength=16)
+    head = row_code[:h]
+    types = res[R_TYPES : R_TYPES + 16] - np.bincount(head[head >= 0], minlength=16)
     for t in np.flatnonzero(types).tolist():
         pipe.by_type[_TYPE_NAME.get(t, str(t))] += int(types[t])
     c["strobes"] += int(types[9])
@@ -459,23 +515,23 @@ def _replay_scanned(scan, track, options, scan_s: float = 0.0):
     c["processed"] += nm
     if state.stale[0]:
         c["stale_not_sent"] += int(state.stale[0])
-    pairs = np.bincount(kind * 16 + out_i[0], minlength=16 * 16) if nm else np.zeros(0, dtype=np.int64)
     for code in np.flatnonzero(pairs).tolist():
         kd, oc = divmod(code, 16)
         c[f"outcome_{_KIND_NAME[kd]}_{Outcome(oc).name.lower()}"] += int(pairs[code])
-    stopped = bool(stop_rows.size)
+    stopped = bool(res[R_STOPPED])
     if stopped:
         c["stops"] += 1
     if k_out:
-        j = int(sent[-1])
-        pipe.last_estimate = state.estimate_of(j, z, float(lat_out[-1]), float(lon_out[-1]))
+        pipe.last_estimate = state.estimate_of(
+            int(sent_info[0]), z, float(est["lat"][-1]), float(est["lon"][-1])
+        )
     metrics = pipe.metrics()
     seqm = metrics["sequencing"]
-    n_valid = int(ok.sum())
+    n_valid = int(types.sum())
     for k in ("received", "released", "in_order"):
         seqm[k] += n_valid
     metrics["link"]["outputs"] += k_out
-    compiled = int(rows.size) - state.python_steps
+    compiled = (n - h) - state.python_steps
     metrics["fast_replay"] = {
         "exact_prefix_datagrams": h,
         "compiled_datagrams": compiled,
@@ -485,9 +541,9 @@ def _replay_scanned(scan, track, options, scan_s: float = 0.0):
         "compiled_fraction": compiled / n,
         "retransmissions_simulated": "exact prefix only",
     }
-    last_frame = int(scan.frame_index[n - 1]) if stopped else scan.frames
+    last_frame = int(res[R_STOP_FRAME]) if stopped else int(res[R_FRAMES])
     skipped = Counter()
-    for frame, code in scan.skipped_at:
+    for frame, code in got.skipped_at.tolist():
         if frame <= last_frame:
             skipped[SKIP_REASONS[int(code)]] += 1
     result = ReplayResult(
