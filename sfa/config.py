@@ -109,10 +109,12 @@ class FilterConfig:
     max_time_jump_s: float = 10.0  #: a measurement further ahead of the state needs confirming [s]
     # --- interval and status
     confidence: float = 0.95  #: two-sided confidence of the arc-length interval [probability]
-    #: while a sensor fault is declared (GNSS step or ramp, odometer slip, accelerometer fault, IMU
-    #: stuck) the reported sigma is multiplied by z(fault_confidence) / z(confidence), so the reported
-    #: interval spans the filter's own fault_confidence interval: a fault is detected late and what it
-    #: did before detection is not in the covariance. Equal to confidence: no widening [probability]
+    #: while a sensor is declared faulty (GNSS step or ramp, odometer slip, accelerometer fault, IMU
+    #: stuck) or missing (IMU, odometer or GNSS timeout) the reported sigma is multiplied by
+    #: z(fault_confidence) / z(confidence), so the reported interval spans the filter's own
+    #: fault_confidence interval: a fault is detected late and what it did before detection is not in
+    #: the covariance, and without a sensor the filter rests on the models that sensor would check
+    #: (dead reckoning, the gyro's map matching). Equal to confidence: no widening [probability]
     fault_confidence: float = 0.99
     degraded_sigma_m: float = 5.0  #: sigma_s above which the status is DEGRADED [m]
     lost_sigma_m: float = 100.0  #: sigma_s above which the status is LOST [m]

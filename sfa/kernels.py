@@ -758,7 +758,7 @@ def status_of(x, P, aux, cfg, t):
         # odometer's position, estimate + A_SLIP_DS (half-width z sigma + |A_SLIP_DS|)
         sigma += abs(aux[A_SLIP_DS]) / cfg[K_Z_INTERVAL]
     if (bits & FAULT_REASONS) != 0:
-        # a declared fault: widen to the fault_confidence interval (its effect before detection is not in P)
+        # a sensor faulty or missing: widen to the fault_confidence interval (config: fault_confidence)
         sigma *= cfg[K_FAULT_SIGMA_SCALE]
     if sigma > cfg[K_LOST_SIGMA]:
         bits |= R_SIGMA_LOST

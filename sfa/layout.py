@@ -296,8 +296,11 @@ REASON_NAMES = {
     R_IMU_FAULT: "imu_fault",
 }
 
-#: declared sensor faults: while any is set the reported sigma is widened by K_FAULT_SIGMA_SCALE
-FAULT_REASONS = R_SLIP | R_GNSS_STEP | R_GNSS_RAMP | R_IMU_STUCK | R_IMU_FAULT
+#: a sensor declared faulty or missing: while any is set the reported sigma is widened by K_FAULT_SIGMA_SCALE
+FAULT_REASONS = (
+    R_SLIP | R_GNSS_STEP | R_GNSS_RAMP | R_IMU_STUCK | R_IMU_FAULT
+    | R_GPS_TIMEOUT | R_ODO_TIMEOUT | R_IMU_TIMEOUT
+)
 
 #: reasons that are informative only (do not degrade the status)
 INFO_REASONS = R_STANDSTILL

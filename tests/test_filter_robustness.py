@@ -176,16 +176,18 @@ def test_invalid_values_rejected_counted_never_nan(db, cfg):
 
 
 def test_declared_fault_widens_the_reported_interval_only(db, cfg):
-    """While a sensor fault is declared the reported sigma is the filter's own times
-    z(fault_confidence) / z(confidence); the estimate itself is the same, and outside the fault the
-    sigma is unchanged (the same run with fault_confidence = confidence as reference)."""
+    """While a sensor is declared faulty or missing the reported sigma is the filter's own times
+    z(fault_confidence) / z(confidence); the estimate itself is the same, and otherwise the sigma is
+    unchanged (the same run with fault_confidence = confidence as reference). The ramp run's GNSS
+    hold-off also times GNSS out."""
     ramp = (150.0, 250.0, 0.0, 0.3)
     run = generate(db, 1, 260.0, IMU, ODO, GPS, seed=14, faults=Faults(gps_ramps=(ramp,)))
     _, wide, _ = run_filter(db, cfg, run.measurements)
     _, plain, _ = run_filter(db, cfg.replace(fault_confidence=cfg.confidence), run.measurements)
     assert len(wide) == len(plain)
     scale = cfg.interval_z(cfg.fault_confidence) / cfg.interval_z()
-    fault = {"gnss_ramp", "gnss_step", "odometer_slip", "imu_fault", "imu_stuck"}
+    fault = {"gnss_ramp", "gnss_step", "odometer_slip", "imu_fault", "imu_stuck", "gnss_timeout",
+             "odometer_timeout", "imu_timeout"}
     n_fault = 0
     for w, p in zip(wide, plain, strict=True):
         assert w.arc_length_m == p.arc_length_m and w.reasons == p.reasons
