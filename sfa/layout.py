@@ -239,7 +239,7 @@ K_IMU_FAULT_HOLD = 59  #: how long a declared accelerometer fault stays reported
 K_GYRO_AVG_N = 60  #: IMU samples averaged into one gyro update [samples]
 K_GYRO_AVG_MAX_S = 61  #: longest span of one gyro window [s]
 K_SLIP_ARB_LLR = 62  #: GNSS log-likelihood ratio that decides a slip against an accelerometer fault [-]
-#: reported sigma factor while a sensor fault is declared: z(fault_confidence) / z(confidence) [-]
+#: reported sigma factor while a sensor is faulty or missing: z(fault_confidence) / z(confidence) [-]
 K_FAULT_SIGMA_SCALE = 63
 NCFG = 64
 

@@ -303,7 +303,7 @@ def run_live(spec: ScenarioSpec, out: Path) -> Observation:
 
     def start(name: str, argv: list[str], preexec_fn=None) -> subprocess.Popen:
         p = subprocess.Popen(argv, stderr=subprocess.PIPE, stdout=subprocess.DEVNULL, text=True, env=env,
-                             preexec_fn=preexec_fn)  # noqa: PLW1509 - only _deployed_priority, async-safe
+                             preexec_fn=preexec_fn)  # noqa: PLW1509 - os.nice wrappers only
         procs.append(p)
         reader = LogReader(p.stderr, out / f"{name}.log")
         reader.start()
