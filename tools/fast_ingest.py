@@ -176,29 +176,44 @@ def _arrival(d, payload):
 
 
 @njit(cache=True, _nrt=False)
-def scan_records(d, port, out_t, out_ip, out_port, out_off, out_len, out_frame, skip, res):
-    """Every record: datagrams to ``port`` into out_* (arrival, source address and port, payload offset and
-    length, 1-based record number), skipped frames into ``skip`` (record number, F_*).
-    ``res``: (status U_*, records, datagrams, skipped)."""
+def _next_datagram(d, pos, port, skip, frames, s):
+    """Walk the records from ``pos`` to the next datagram to ``port``, noting the skipped frames in
+    ``skip`` (record number, F_*). ``frames``: records walked so far, ``s``: skipped frames so far.
+
+    Returns (status U_*, position after the datagram's record, frames, s, payload offset, payload
+    length); the payload offset is -1 when the walk ends: at the end of the file (status U_OK) or at a
+    record the fast path does not read (its status)."""
     n = d.shape[0]
-    pos = GLOBAL_HEADER_BYTES
-    frames = 0
-    k = 0
-    s = 0
-    status = U_OK
     while pos < n:
         status, nxt, code, o, plen = _record(d, pos, port)
         if status == U_TRUNCATED:
-            break
+            return status, pos, frames, s, -1, 0
         frames += 1
         pos = nxt
         if status != U_OK:
-            break
+            return status, pos, frames, s, -1, 0
         if code != F_DATAGRAM:
             skip[s, 0] = frames
             skip[s, 1] = code
             s += 1
             continue
+        return U_OK, pos, frames, s, o, plen
+    return U_OK, pos, frames, s, -1, 0
+
+
+@njit(cache=True, _nrt=False)
+def scan_records(d, port, out_t, out_ip, out_port, out_off, out_len, out_frame, skip, res):
+    """Every record: datagrams to ``port`` into out_* (arrival, source address and port, payload offset and
+    length, 1-based record number), skipped frames into ``skip`` (record number, F_*).
+    ``res``: (status U_*, records, datagrams, skipped)."""
+    pos = GLOBAL_HEADER_BYTES
+    frames = 0
+    k = 0
+    s = 0
+    while True:
+        status, pos, frames, s, o, plen = _next_datagram(d, pos, port, skip, frames, s)
+        if o < 0:
+            break
         ip = o - 28
         out_t[k] = _arrival(d, o)
         out_ip[k] = (
@@ -302,7 +317,6 @@ def ingest(
     Output arrays are sized by the caller for the most records the file can hold; ``st_key``/``st_last``
     hold ``max_streams`` streams, ``w`` is a MAX_FIELDS scratch row; ``res`` (NRES int64) receives the
     counts and flags (slots R_*)."""
-    n = d.shape[0]
     for q in range(NRES):
         res[q] = 0
     for q in range(16):
@@ -321,20 +335,10 @@ def ingest(
     overflow = False
     q_hint = 0
     stopped = False
-    status = U_OK
-    while pos < n:
-        status, nxt, code, o, plen = _record(d, pos, port)
-        if status == U_TRUNCATED:
+    while True:
+        status, pos, frames, s, o, plen = _next_datagram(d, pos, port, skip, frames, s)
+        if o < 0:
             break
-        frames += 1
-        pos = nxt
-        if status != U_OK:
-            break
-        if code != F_DATAGRAM:
-            skip[s, 0] = frames
-            skip[s, 1] = code
-            s += 1
-            continue
         k += 1
         if stopped:  # the replay ended at the STOP; the rest of the file is only walked (for errors)
             continue
