@@ -31,6 +31,7 @@ timeouts (wall clock) and the windows mean the same as on the replay path.
 
 from __future__ import annotations
 
+import functools
 import json
 import math
 import os
@@ -157,12 +158,17 @@ def fresh_mask(seq: np.ndarray) -> np.ndarray:
 LISTENER_NICE = -5
 
 
-def _deployed_priority() -> None:
-    """preexec_fn of the listener's process: the deployed niceness where allowed (root), else unchanged."""
+def _renice(increment: int) -> None:
+    """preexec_fn body: add ``increment`` to the child's niceness where allowed (a negative one needs root
+    or CAP_SYS_NICE), else leave it unchanged."""
     try:
-        os.nice(LISTENER_NICE)
+        os.nice(increment)
     except OSError:
         pass
+
+
+#: preexec_fn of the listener's process: the deployed niceness
+_deployed_priority = functools.partial(_renice, LISTENER_NICE)
 
 
 #: the flood injector's niceness: on the target the attacker's datagrams are generated on other machines;
@@ -185,12 +191,8 @@ def behind_schedule(sent_over_s: float, window_s: float) -> bool:
     return math.isfinite(window_s) and sent_over_s > FLOOD_SCHEDULE_SLACK * window_s
 
 
-def _attacker_priority() -> None:
-    """preexec_fn of the injector's process: lower priority (any user may lower its own)."""
-    try:
-        os.nice(INJECTOR_NICE)
-    except OSError:
-        pass
+#: preexec_fn of the injector's process: lower priority (any user may lower its own)
+_attacker_priority = functools.partial(_renice, INJECTOR_NICE)
 
 
 def _niceness(pid: int) -> int | None:
