@@ -88,9 +88,3 @@ def scan_capture(path: str | Path, port: int) -> ScannedCapture | str:
         int(frames),
         skip[:s].copy(),
     )
-
-
-def ipv4_text(addr: int) -> str:
-    """Dotted-quad text of an IPv4 address held as an integer (as socket.inet_ntop writes it)."""
-    a = int(addr)
-    return f"{a >> 24 & 255}.{a >> 16 & 255}.{a >> 8 & 255}.{a & 255}"
