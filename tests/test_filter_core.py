@@ -270,3 +270,41 @@ def test_hypotheses_on_routes_sharing_one_track_are_duplicates():
         assert not f._same_track(shared[0], hyp(10, 2418.0, -1.0))  # the other way along it
         assert not f._same_track(hyp(2, 2351.4), hyp(1, 2350.8))  # line 1 parts from line 2 ahead
         assert not f._same_track(shared[0], hyp(2, 2420.0))  # same line: 2 m apart
+
+
+def _roll_cos_by_angles(f_lat, f_up, fy, fz):
+    """The roll compensation's definition: phi = atan2(f_up, f_lat) - atan2(fz, fy), used when the
+    force is plausible and |phi| <= 0.35 rad (the kernel gets cos(phi) without the two atan2)."""
+    nb, nl = math.hypot(fy, fz), math.hypot(f_lat, f_up)
+    if not 0.8 * nl <= nb <= 1.25 * nl:
+        return 1.0
+    phi = math.atan2(f_up, f_lat) - math.atan2(fz, fy)
+    return math.cos(phi) if abs(phi) <= 0.35 else 1.0
+
+
+def test_roll_cos_equals_the_angle_difference_it_replaces():
+    from sfa import kernels as K
+
+    rng = np.random.default_rng(7)
+    g = 9.80665
+    compensated = 0
+    for _ in range(20000):
+        f_lat = rng.normal(0.0, 3.0)
+        level = complex(f_lat, -g)
+        roll = rng.uniform(-0.5, 0.5)  # inside and outside the 0.35 rad limit
+        body = level * rng.uniform(0.7, 1.3) * complex(math.cos(-roll), math.sin(-roll))
+        want = _roll_cos_by_angles(f_lat, -g, body.real, body.imag)
+        got = K.roll_cos(f_lat, -g, body.real, body.imag)
+        if abs(abs(roll) - 0.35) > 1e-9:  # the limit itself: rounding decides either way
+            assert got == pytest.approx(want, abs=1e-14), (f_lat, roll, body)
+        compensated += got != 1.0
+    assert 5000 < compensated < 20000  # both branches taken
+    # across atan2's branch cut (both vectors near the negative x axis, on either side of it) the angle
+    # difference is near 2 pi: no compensation, as the definition says, though the roll is small
+    assert _roll_cos_by_angles(-10.0, 0.01, -10.0, -0.01) == 1.0
+    assert K.roll_cos(-10.0, 0.01, -10.0, -0.01) == 1.0
+    same_side = _roll_cos_by_angles(-10.0, 0.01, -10.0, 0.02)
+    assert same_side != 1.0 and K.roll_cos(-10.0, 0.01, -10.0, 0.02) == pytest.approx(same_side)
+    # no force at all, NaN: no compensation
+    assert K.roll_cos(0.0, 0.0, 0.0, 0.0) == 1.0
+    assert K.roll_cos(1.0, -g, math.nan, -g) == 1.0

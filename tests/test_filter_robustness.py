@@ -407,3 +407,28 @@ def test_stuck_imu_detected_reported_and_bridged(db, cfg):
     after = [e for e in est if e.epoch_s - run.t_s[0] > 61.0]
     assert after and "imu_stuck" not in after[-1].reasons
     assert run_filter(db, cfg, run.measurements)[2].counters()["imu_stuck_samples"] == 0
+
+
+def test_covariance_stays_exactly_symmetric_through_faults(db, cfg):
+    """sync_block averages only the (S, V, GE, GN) pairs (the others are equal by construction when P is
+    symmetric): that holds only if every path leaves P exactly symmetric. Slip (rewind, re-anchor),
+    GNSS jump and ramp, outage, standstills (reversal hypotheses): checked after every measurement."""
+    faults = Faults(
+        gps_outages=((60.0, 90.0),),
+        gps_jumps=((110.0, 125.0, 40.0, -25.0),),
+        gps_ramps=((150.0, 170.0, 0.8, 0.4),),
+        odo_slips=((30.0, 36.0, 1.25),),
+    )
+    run = generate(db, 1, 200.0, IMU, ODO, GPS, seed=31, faults=faults)
+    f = TrackFilter(db, cfg)
+    checked = 0
+    worst = 0.0
+    for m in run.measurements[:30000]:
+        f.process(m)
+        for h in f._hyps:
+            worst = max(worst, float(np.max(np.abs(h.P - h.P.T))))
+            checked += 1
+    c = f.counters()
+    assert c["slip_detections"] >= 1 and c["gnss_step_detections"] + c["gps_gated"] >= 1
+    assert c["zupt_updates"] > 0 and checked > 20000
+    assert worst == 0.0

@@ -52,7 +52,8 @@ class CReferenceUnavailable(RuntimeError):
 
 
 def layout_header() -> str:
-    """``#define`` lines for every integer slot of sfa.layout the C code uses, and NVALS."""
+    """``#define`` lines for every integer slot of sfa.layout the C code uses, NVALS and COS_MAX_ROLL
+    (sfa.kernels, written with repr: the same double)."""
     from sfa import layout
     from sfa.batch import NV
 
@@ -67,7 +68,9 @@ def layout_header() -> str:
             continue
         if name in _NAMES or name.startswith(_PREFIXES):
             lines.append(f"#define {name} {value}")
-    lines += [f"#define NVALS {NV}", "#endif", ""]
+    from sfa.kernels import COS_MAX_ROLL
+
+    lines += [f"#define NVALS {NV}", f"#define COS_MAX_ROLL {COS_MAX_ROLL!r}", "#endif", ""]
     return "\n".join(lines)
 
 

@@ -241,7 +241,16 @@ static void sync_block(double *x, double *P, double *aux, const double *cfg, lon
     PIJ(P, BG, BG) += cfg[K_Q_BG] * hb;
     PIJ(P, SG, SG) += cfg[K_Q_SG] * hb;
     block_clear(aux);
-    if (symmetrise_floor(P, cfg)) cnt[C_COV_REPAIR] += 1;
+    /* (P + P')/2 on the pairs the two passes round differently: within (S, V, GE, GN) (sfa.kernels.
+       _symmetrise_moved_floor), then the diagonal floor */
+    static const int moved[4] = {S, V, GE, GN};
+    for (int a = 0; a < 4; a++)
+        for (int b = a + 1; b < 4; b++) {
+            double m = 0.5 * (PIJ(P, moved[a], moved[b]) + PIJ(P, moved[b], moved[a]));
+            PIJ(P, moved[a], moved[b]) = m;
+            PIJ(P, moved[b], moved[a]) = m;
+        }
+    if (floor_diag(P, cfg)) cnt[C_COV_REPAIR] += 1;
 }
 
 /* (F_B P F_B' + Q_B)[S, S] without changing anything (sfa.kernels.pending_var_s) */
@@ -265,6 +274,11 @@ static void predict_to(double *x, double *P, double *aux, long *cnt, const doubl
     double dt_total = t - aux[A_T_STATE];
     if (dt_total <= 0.0) return;
     int imu_ok = (t - aux[A_T_IMU]) <= cfg[K_IMU_TIMEOUT];
+    if (dt_total <= cfg[K_MAX_DT]) { /* one step (every IMU sample) */
+        predict_step(x, aux, cfg, ts, tg, nv, dt_total, imu_ok);
+        aux[A_T_STATE] = t;
+        return;
+    }
     long n = (long)ceil(dt_total / cfg[K_MAX_DT]);
     if (n < 1) n = 1;
     if (n > 10000) n = 10000; /* a long confirmed gap: keep the cost bounded */
@@ -597,9 +611,10 @@ static double roll_cos(double f_lat, double f_up, double fy, double fz) {
     double nb = sqrt(fy * fy + fz * fz);
     double nl = sqrt(f_lat * f_lat + f_up * f_up);
     if (!(0.8 * nl <= nb && nb <= 1.25 * nl)) return 1.0;
-    double phi = atan2(f_up, f_lat) - atan2(fz, fy);
-    if (!(fabs(phi) <= 0.35)) return 1.0;
-    return cos(phi);
+    double c = (f_lat * fy + f_up * fz) / (nl * nb); /* cos(phi) = <f_level, f_body> / (|.| |.|) */
+    if (!(c >= COS_MAX_ROLL)) return 1.0;
+    if (f_lat < 0.0 && fy < 0.0 && copysign(1.0, f_up) != copysign(1.0, fz)) return 1.0; /* branch cut */
+    return c;
 }
 
 /* one gyro update from the window's n samples (mean residual, mean Jacobian, R = sigma_g^2 / n + mean
