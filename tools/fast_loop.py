@@ -35,6 +35,10 @@ from numba import njit
 from sfa import kernels as K
 from sfa import layout as L
 
+#: slots of run_segment's ``ost`` (int64[NOST]): next estimate row, estimates not sent as stale, last
+#: sent measurement (-1: none yet), its reason bits, smallest and largest line id sent
+O_ROW, O_STALE, O_LAST, O_BITS, O_LINE_LO, O_LINE_HI = range(6)
+NOST = 6
 DONE = 0  #: every measurement processed
 STOP_BEFORE = 1  #: stopped before measurement i (state untouched by it)
 STOP_UNDONE = 2  #: measurement i was stepped, then undone (state as before it)
@@ -234,20 +238,29 @@ def run_segment(
     reversal,
     fresh_min,
     last,
-    out_f,
-    out_i,
-    stale,
+    u_out,
+    u_nis,
+    e_f,
+    e_i,
+    ost,
+    m_time,
+    line_id,
+    seq0,
+    z,
     work_i,
     work_f,
 ):
     """Step measurements i0, i0 + 1, ... of (kind, t, vals) with the hypotheses ``order[:ns[0]]``
     (slots of X, PP, AUX, CNT, MEM), reported ``order[ns[1]]``; S* are snapshot arrays of the same shapes.
 
-    out_f (5, n): epoch [s], s [m], speed [m/s], sigma_s [m], nis (NaN for IMU); out_i (4, n): outcome,
-    status, reason bits, 1 when the listener sends an output (one contiguous row per quantity).
-    ``last``: the listener's last output (epoch, s), advanced; ``stale[0]``: estimates not sent as
-    stale, advanced. ``work_i`` (2, cap) int64 and ``work_f`` (cap,) are scratch (the loop is compiled
-    without numba's allocator and reference counting, ``_nrt=False``: it allocates nothing).
+    Per measurement i: its outcome ``u_out[i]`` and NIS ``u_nis[i]`` (NaN for IMU). Per output the listener
+    sends (``last``: its last output (epoch, s), advanced), one row r = ost[O_ROW] (then advanced) of the
+    replay's estimate columns: e_f[:, r] = epoch [s], s [m], arrival ``m_time[i]`` [s], speed [m/s],
+    sigma_s [m], interval low and high (s -+ z sigma) [m]; e_i[:, r] = output SEQ (seq0 + r & 0xFFFF),
+    status, ``line_id``. ``ost`` also counts estimates not sent as stale (O_STALE) and holds the last sent
+    measurement, its reason bits and the smallest and largest line sent (O_LAST, O_BITS, O_LINE_LO,
+    O_LINE_HI). ``work_i`` (2, cap) int64 and ``work_f`` (cap,) are scratch (the loop is compiled without
+    numba's allocator and reference counting, ``_nrt=False``: it allocates nothing).
     Returns (i, why): DONE with i = n, STOP_BEFORE / STOP_UNDONE with i the first measurement not
     processed, STOP_AFTER with i the measurement whose branch spawning and output are the caller's.
     """
@@ -371,32 +384,46 @@ def run_segment(
                         break
                 if branch:
                     break
+        u_nis[i] = nis
+        u_out[i] = code
         if branch:
-            out_f[4, i] = nis
-            out_i[0, i] = code
             return i, STOP_AFTER
         r = order[ns[1]]
         epoch = AUX[r, L.A_T_STATE]
-        st, bits, sig = K.status_of(X[r], PP[r], AUX[r], cfg, epoch)
         s = X[r, L.S]
-        out_f[0, i] = epoch
-        out_f[1, i] = s
-        out_f[2, i] = float(int(AUX[r, L.A_DIR])) * X[r, L.V]
-        out_f[3, i] = sig
-        out_f[4, i] = nis
-        out_i[0, i] = code
-        out_i[1, i] = st
-        out_i[2, i] = bits
-        send = 0
         if math.isfinite(epoch) and math.isfinite(s):
             if epoch < fresh_min[i]:
-                stale[0] += 1
+                ost[O_STALE] += 1
             elif epoch >= last[0] and not (epoch == last[0] and s == last[1]):
-                send = 1
                 last[0] = epoch
                 last[1] = s
-        out_i[3, i] = send
+                st, bits, sig = K.status_of(X[r], PP[r], AUX[r], cfg, epoch)  # what the output carries
+                put_row(e_f, e_i, ost, i, epoch, s, m_time[i], float(int(AUX[r, L.A_DIR])) * X[r, L.V], sig,
+                        st, bits, line_id, seq0, z)  # fmt: skip
     return n, DONE
+
+
+@njit(cache=False, _nrt=False)
+def put_row(e_f, e_i, ost, i, epoch, s, arrival, speed, sig, status, bits, line_id, seq0, z):
+    """One sent output, for measurement i, into the estimate columns at row ost[O_ROW] (see run_segment)."""
+    k = ost[O_ROW]
+    e_f[0, k] = epoch
+    e_f[1, k] = s
+    e_f[2, k] = arrival
+    e_f[3, k] = speed
+    e_f[4, k] = sig
+    e_f[5, k] = s - z * sig
+    e_f[6, k] = s + z * sig
+    e_i[0, k] = (seq0 + k) & 0xFFFF
+    e_i[1, k] = status
+    e_i[2, k] = line_id
+    if ost[O_LAST] < 0 or line_id < ost[O_LINE_LO]:
+        ost[O_LINE_LO] = line_id
+    if ost[O_LAST] < 0 or line_id > ost[O_LINE_HI]:
+        ost[O_LINE_HI] = line_id
+    ost[O_LAST] = i
+    ost[O_BITS] = bits
+    ost[O_ROW] = k + 1
 
 
 @njit(cache=False)  # calls sfa.kernels.interp_at: compiled per process like run_segment

@@ -23,8 +23,10 @@ and then runs the capture in compiled code:
    hypothesis is on one line, and ``TrackFilter.process`` itself for the measurements where the filter
    branches at a junction, keeps hypotheses on several lines, re-initialises (GROUND TRUTH) or applies
    its time-jump rule; the state goes back and forth between the two through the filter object,
-6. the result columns (estimates as sent, per-measurement updates, lat/lon on the line, counters) are
-   written in one compiled pass over the filter's output rows.
+6. the result columns (estimates as sent, per-measurement outcomes and NIS) are written by the filter
+   loop itself, straight into the arrays the result hands out (no intermediate per-measurement rows:
+   about 50 MB less memory to fault in on a 90 min capture); lat/lon on the line and the counters
+   follow in one pass each.
 
 When any condition fails it returns None (and :func:`try_fast_replay` says why): the caller runs the
 exact replay instead. What the result does not simulate: retransmissions of the OBCU link after the
@@ -48,7 +50,19 @@ from numba import njit
 from listener.pipeline import to_measurement
 from sfa import layout as L
 from sfa.layout import Outcome
-from tools.fast_loop import STOP_AFTER, STOP_UNDONE, run_segment
+from tools.fast_loop import (
+    NOST,
+    O_BITS,
+    O_LAST,
+    O_LINE_HI,
+    O_LINE_LO,
+    O_ROW,
+    O_STALE,
+    STOP_AFTER,
+    STOP_UNDONE,
+    put_row,
+    run_segment,
+)
 
 #: datagrams replayed through the exact pipeline at most before the hand-over to compiled code
 MAX_EXACT_PREFIX = 200_000
@@ -56,7 +70,6 @@ _KIND_NAME = {1: "imu", 2: "odo", 3: "gps", 8: "init"}
 _TYPE_NAME = {1: "imu", 2: "odometer", 3: "gps", 8: "ground_truth", 9: "strobe", 10: "stop"}
 _KIND_OBJ = np.array([_KIND_NAME.get(k, "?") for k in range(16)], dtype=object)  # Update.kind by code
 _KIND_CODE = {name: code for code, name in _KIND_NAME.items()}
-_INT_COLUMNS = ("seq", "retransmit", "status", "line_id")  #: int64 estimate columns (the others float64)
 
 
 @dataclass(frozen=True)
@@ -207,50 +220,32 @@ class _Prefix:
 
 # ---------------------------------------------------------------------------------------- result rows
 @njit(cache=True, _nrt=False)
-def _result_rows(
-    out_f, out_i, line_row, m_time, kind, t_s, z, seq0, he, hu,
-    e_epoch, e_s, e_seq, e_arr, e_speed, e_sig, e_lo, e_hi, e_status, e_line,
-    u_t, u_out, u_nis, pairs, info,
-):  # fmt: skip
-    """The compiled part of the result, as tools.replay records it, in one pass over the measurements.
-
-    Estimate columns e_* from row ``he`` on (one row per measurement whose output was sent, ``out_i[3]``;
-    not retransmit, zero already, nor lat/lon, interpolated afterwards per line); update columns u_*
-    from row ``hu`` on; ``pairs`` (16 * 16) counts (kind, outcome). ``info``: (index of the last sent
-    measurement or -1, smallest and largest line of the sent rows)."""
-    k = he
-    last = -1
-    lo_line = 0
-    hi_line = -1
+def _tally(kind, outcome, pairs):
+    """pairs[kind * 16 + outcome] += 1 per measurement (the pipeline's outcome counters)."""
     for i in range(kind.shape[0]):
-        oc = out_i[0, i]
-        u_t[hu + i] = t_s[i]
-        u_out[hu + i] = oc
-        u_nis[hu + i] = out_f[4, i]
-        pairs[kind[i] * 16 + oc] += 1
-        if out_i[3, i] == 1:
-            s = out_f[1, i]
-            sig = out_f[3, i]
-            e_epoch[k] = out_f[0, i]
-            e_s[k] = s
-            e_seq[k] = (seq0 + (k - he)) & 0xFFFF
-            e_arr[k] = m_time[i]
-            e_speed[k] = out_f[2, i]
-            e_sig[k] = sig
-            e_lo[k] = s - z * sig
-            e_hi[k] = s + z * sig
-            e_status[k] = out_i[1, i]
-            ln = line_row[i]
-            e_line[k] = ln
-            if last < 0 or ln < lo_line:
-                lo_line = ln
-            if last < 0 or ln > hi_line:
-                hi_line = ln
-            last = i
-            k += 1
-    info[0] = last
-    info[1] = lo_line
-    info[2] = hi_line
+        pairs[kind[i] * 16 + outcome[i]] += 1
+
+
+class _Columns:
+    """The replay's result columns, allocated once for the prefix's rows and the nm measurements after
+    it: the update columns (time, outcome, NIS; ``u_out``/``u_nis`` are the views from the prefix's rows
+    on, which the filter writes) and the estimate columns (``e_f`` (7, he + nm): epoch, arc length,
+    arrival, speed, sigma, interval low and high; ``e_i`` (3, he + nm): SEQ, status, line id), of which
+    the first ``he`` rows are the prefix's and the rest are written per estimate sent. np.empty: the
+    rows never written are never touched."""
+
+    def __init__(self, prefix, nm: int) -> None:
+        self.he = he = len(prefix.est_rows)
+        hu = len(prefix.upd)
+        self.u_t = np.empty(hu + nm)
+        self.u_out_all = np.empty(hu + nm, dtype=np.int64)
+        self.u_nis_all = np.empty(hu + nm)
+        for c_i, arr in ((0, self.u_t), (2, self.u_out_all), (3, self.u_nis_all)):
+            arr[:hu] = np.array([u[c_i] for u in prefix.upd], dtype=arr.dtype)
+        self.u_out = self.u_out_all[hu:]
+        self.u_nis = self.u_nis_all[hu:]
+        self.e_f = np.empty((7, he + nm))
+        self.e_i = np.empty((3, he + nm), dtype=np.int64)
 
 
 @njit(cache=True, _nrt=False)
@@ -402,7 +397,13 @@ def _replay_ingested(got, track, options, ingest_s: float = 0.0):
     nm = mrows.size
     lap("pack")
 
-    # 4. the filter: compiled while its hypotheses share one line, TrackFilter.process otherwise
+    # 4. the filter: compiled while its hypotheses share one line, TrackFilter.process otherwise. It
+    # writes the result columns itself: the per-measurement updates, and a row per estimate sent
+    from tools.replay import ESTIMATE_COLUMNS, ReplayResult
+
+    he = len(prefix.est_rows)
+    hu = len(prefix.upd)
+    cols = _Columns(prefix, nm)
     filt = pipe.filter
     last = pipe.last_estimate
     state = _FilterRun(
@@ -410,8 +411,10 @@ def _replay_ingested(got, track, options, ingest_s: float = 0.0):
         nm,
         -math.inf if last is None else float(last.epoch_s),
         math.nan if last is None else float(last.arc_length_m),
+        cols,
+        m_time,
+        options.config.link.start_seq + pipe.link.outputs,
     )
-    out_f, out_i = state.out_f, state.out_i
     i = 0
     while i < nm:
         j = state.compiled(i, kind, t_s, vals, fresh_min)
@@ -425,31 +428,32 @@ def _replay_ingested(got, track, options, ingest_s: float = 0.0):
     lap("filter")
 
     # 5. the result, as tools.replay builds it: the prefix's rows, then the compiled rows
-    from tools.replay import ESTIMATE_COLUMNS, ReplayResult
-
-    z = float(filt.config.to_array()[L.K_Z_INTERVAL])
-    k_out = int(np.count_nonzero(out_i[3]))
-    he = len(prefix.est_rows)
+    ost = state.ost
+    k_out = int(ost[O_ROW]) - he
+    rows = he + k_out
+    e_f, e_i = cols.e_f, cols.e_i
     est = {
-        name: np.empty(he + k_out, dtype=np.int64 if name in _INT_COLUMNS else np.float64)
-        for name in ESTIMATE_COLUMNS
+        "epoch": e_f[0, :rows],
+        "arc_length": e_f[1, :rows],
+        "seq": e_i[0, :rows],
+        "retransmit": np.zeros(rows, dtype=np.int64),  # no retransmission after the prefix
+        "arrival": e_f[2, :rows],
+        "speed": e_f[3, :rows],
+        "sigma": e_f[4, :rows],
+        "interval_low": e_f[5, :rows],
+        "interval_high": e_f[6, :rows],
+        "status": e_i[1, :rows],
+        "line_id": e_i[2, :rows],
+        "lat": np.empty(rows),
+        "lon": np.empty(rows),
     }
-    est["retransmit"] = np.zeros(he + k_out, dtype=np.int64)  # no retransmission after the prefix
+    assert tuple(est) == ESTIMATE_COLUMNS
     for c_i, name in enumerate(ESTIMATE_COLUMNS):
         est[name][:he] = np.array([r[c_i] for r in prefix.est_rows], dtype=est[name].dtype)
-    hu = len(prefix.upd)
-    updates = {"t": np.empty(hu + nm), "kind": None, "outcome": np.empty(hu + nm, dtype=np.int64)}
-    updates["nis"] = np.empty(hu + nm)
-    for c_i, name in ((0, "t"), (2, "outcome"), (3, "nis")):
-        updates[name][:hu] = np.array([u[c_i] for u in prefix.upd], dtype=updates[name].dtype)
+    updates = {"t": cols.u_t, "kind": None, "outcome": cols.u_out_all, "nis": cols.u_nis_all}
+    cols.u_t[hu:] = t_s
     pairs = np.zeros(16 * 16, dtype=np.int64)
-    sent_info = np.zeros(3, dtype=np.int64)
-    seq0 = options.config.link.start_seq + pipe.link.outputs
-    _result_rows(
-        out_f, out_i, state.line_row, m_time, kind, t_s, z, seq0, he, hu,
-        *(est[name] for name in ESTIMATE_COLUMNS if name not in ("retransmit", "lat", "lon")),
-        updates["t"], updates["outcome"], updates["nis"], pairs, sent_info,
-    )  # fmt: skip
+    _tally(kind, cols.u_out, pairs)
     codes = [_KIND_CODE.get(u[1], -1) for u in prefix.upd]
     if -1 in codes:  # pragma: no cover - TrackFilter's kinds are those of _KIND_NAME
         head = np.array([u[1] for u in prefix.upd], dtype=object)
@@ -462,7 +466,7 @@ def _replay_ingested(got, track, options, ingest_s: float = 0.0):
     if k_out:
         s_out = est["arc_length"][he:]
         lines_out = est["line_id"][he:]
-        lo_line, hi_line = int(sent_info[1]), int(sent_info[2])
+        lo_line, hi_line = int(ost[O_LINE_LO]), int(ost[O_LINE_HI])
         lines = [lo_line] if lo_line == hi_line else np.unique(lines_out).tolist()
         arrays = {lid: filt._line_arrays(int(lid)) for lid in lines if lid >= 0}
         if len(lines) > 1 or not arrays or arrays[lines[0]].lat_deg is None:
@@ -513,8 +517,8 @@ def _replay_ingested(got, track, options, ingest_s: float = 0.0):
     c["strobes"] += int(types[9])
     c["dated_by_epoch"] += nm
     c["processed"] += nm
-    if state.stale[0]:
-        c["stale_not_sent"] += int(state.stale[0])
+    if ost[O_STALE]:
+        c["stale_not_sent"] += int(ost[O_STALE])
     for code in np.flatnonzero(pairs).tolist():
         kd, oc = divmod(code, 16)
         c[f"outcome_{_KIND_NAME[kd]}_{Outcome(oc).name.lower()}"] += int(pairs[code])
@@ -522,9 +526,7 @@ def _replay_ingested(got, track, options, ingest_s: float = 0.0):
     if stopped:
         c["stops"] += 1
     if k_out:
-        pipe.last_estimate = state.estimate_of(
-            int(sent_info[0]), z, float(est["lat"][-1]), float(est["lon"][-1])
-        )
+        pipe.last_estimate = state.last_estimate(float(est["lat"][-1]), float(est["lon"][-1]))
     metrics = pipe.metrics()
     seqm = metrics["sequencing"]
     n_valid = int(types.sum())
@@ -568,16 +570,21 @@ class _FilterRun:
     """The filter over the packed measurements: compiled segments (tools.fast_loop.run_segment) and the
     rows TrackFilter.process handles, with the listener's output rule over both."""
 
-    def __init__(self, filt, nm: int, last_epoch: float, last_s: float) -> None:
+    def __init__(self, filt, nm: int, last_epoch: float, last_s: float, cols, m_time, seq0: int) -> None:
+        """``cols``: the result columns (u_out, u_nis for the nm measurements; e_f (7, .), e_i (3, .) for
+        the estimates sent, from row ``cols.he`` on, as tools.fast_loop.run_segment writes them)."""
         cfg = filt.config
         self.filt = filt
         self.cfg = cfg.to_array()
+        self.z = float(self.cfg[L.K_Z_INTERVAL])
         self.cap = 2 * int(cfg.max_hypotheses) + 2  # a reversal may double the hypotheses before pruning
-        self.out_f = np.zeros((5, nm))  # one contiguous row per quantity (see run_segment)
-        self.out_i = np.zeros((4, nm), dtype=np.int64)
-        self.line_row = np.full(nm, -1, dtype=np.int64)
+        self.cols = cols
+        self.m_time = m_time
+        self.seq0 = seq0 - cols.he  # run_segment numbers rows from the start of the columns
+        self.ost = np.zeros(NOST, dtype=np.int64)
+        self.ost[O_ROW] = cols.he
+        self.ost[O_LAST] = -1
         self.last = np.array([last_epoch, last_s])
-        self.stale = np.zeros(1, dtype=np.int64)
         self.python_steps = 0
         self.undone = 0  #: measurements handed to TrackFilter after being undone (scores not finite)
         self.branched = 0  #: measurements after which TrackFilter._spawn_branches ran (junction windows)
@@ -681,9 +688,15 @@ class _FilterRun:
             bool(cfg.reversal_hypotheses),
             fresh_min,
             self.last,
-            self.out_f,
-            self.out_i,
-            self.stale,
+            self.cols.u_out,
+            self.cols.u_nis,
+            self.cols.e_f,
+            self.cols.e_i,
+            self.ost,
+            self.m_time,
+            int(line.line_id),
+            self.seq0,
+            self.z,
             self.work_i,
             self.work_f,
         )
@@ -691,7 +704,6 @@ class _FilterRun:
         if why == STOP_UNDONE:
             self.undone += 1
         if j > i or why == STOP_AFTER:
-            self.line_row[i:j] = line.line_id
             new = []
             for q in range(int(self.ns[0])):
                 c = int(self.order[q])
@@ -718,55 +730,59 @@ class _FilterRun:
     def python_row(self, i: int, upd, fresh_min: float) -> None:
         """Row i went through TrackFilter.process: record it and apply the output rule."""
         self.python_steps += 1
-        self.out_f[4, i] = math.nan if upd.nis is None else float(upd.nis)
-        self.out_i[0, i] = int(upd.outcome)
+        self.cols.u_nis[i] = math.nan if upd.nis is None else float(upd.nis)
+        self.cols.u_out[i] = int(upd.outcome)
         self.output_row(i, fresh_min)
 
     def output_row(self, i: int, fresh_min: float) -> None:
         """The filter's estimate after row i, and the listener's output rule on it."""
         est = self.filt.estimate()
         epoch, s = est.epoch_s, est.arc_length_m
-        self.out_f[0:4, i] = (epoch, s, est.speed_mps, est.sigma_s_m)
-        self.out_i[1, i] = int(est.status)
-        self.line_row[i] = -1 if est.line_id is None else est.line_id
-        send = 0
         if math.isfinite(epoch) and math.isfinite(s):
             last = self.last
             if epoch < fresh_min:
-                self.stale[0] += 1
+                self.ost[O_STALE] += 1
             elif epoch >= last[0] and not (epoch == last[0] and s == last[1]):
-                send = 1
                 last[0] = epoch
                 last[1] = s
                 self.python_est[i] = est
-        self.out_i[3, i] = send
+                line_id = -1 if est.line_id is None else est.line_id
+                put_row(
+                    self.cols.e_f, self.cols.e_i, self.ost, i, epoch, s, float(self.m_time[i]),
+                    est.speed_mps, est.sigma_s_m, int(est.status), 0, line_id, self.seq0, self.z,
+                )  # fmt: skip
 
-    def estimate_of(self, i: int, z: float, lat: float, lon: float):
-        """The Estimate the listener holds after the output of row i (for the metrics snapshot)."""
+    def last_estimate(self, lat: float, lon: float):
+        """The Estimate the listener holds after its last output (for the metrics snapshot), or None."""
+        i = int(self.ost[O_LAST])
+        if i < 0:
+            return None
         est = self.python_est.get(i)
         if est is not None:
             return est
+        k = int(self.ost[O_ROW]) - 1
+        e_f, e_i = self.cols.e_f, self.cols.e_i
         return _estimate_row(
-            self.filt, int(self.line_row[i]), self.out_f[:, i], self.out_i[:, i], z, lat, lon
+            self.filt, int(e_i[2, k]), e_f[:, k], int(e_i[1, k]), int(self.ost[O_BITS]), self.z, lat, lon
         )
 
 
-def _estimate_row(filt, line_id: int, f, i, z, lat, lon):
+def _estimate_row(filt, line_id: int, f, status: int, bits: int, z, lat, lon):
     """The Estimate the listener holds as its last output (for the metrics snapshot: status, reasons,
-    line), from a compiled row."""
+    line), from a compiled row (``f``: a column of run_segment's e_f)."""
     from sfa.filter import Estimate
     from sfa.layout import FilterStatus, reasons_from_bits
 
-    s, sig = float(f[1]), float(f[3])
+    s, sig = float(f[1]), float(f[4])
     return Estimate(
         epoch_s=float(f[0]),
         arc_length_m=s,
-        speed_mps=float(f[2]),
+        speed_mps=float(f[3]),
         sigma_s_m=sig,
         interval_low_m=s - z * sig,
         interval_high_m=s + z * sig,
-        status=FilterStatus(int(i[1])),
-        reasons=reasons_from_bits(int(i[2])),
+        status=FilterStatus(status),
+        reasons=reasons_from_bits(bits),
         line_id=None if line_id < 0 else line_id,
         lat_deg=lat,
         lon_deg=lon,
