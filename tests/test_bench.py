@@ -252,6 +252,9 @@ def test_bench_quick_writes_a_complete_table(tmp_path):
     )
     fast = find("replay", "fast replay end to end")
     assert "identical to the exact replay: True" in fast["compared"]
+    sustained = find("replay", "back to back", "slowest")
+    assert len(sustained["samples"]) == 10 and sustained["value"] == pytest.approx(min(sustained["samples"]))
+    assert sustained["met"] == (sustained["value"] >= 1e6)
     assert (
         find("replay", "C reference")["value"] is not None
         or "C reference skipped" in find("replay", "C reference")["note"]

@@ -31,6 +31,7 @@ from tools.errors import ToolError
 
 SCENARIO = "regional-long"
 SECTION = "replay"
+SUSTAINED_RUNS = 10  #: fast replays back to back (the repeats included) for the sustained row
 
 
 def repo_root() -> Path:
@@ -227,6 +228,12 @@ def replay_rows(tmp: Path, quick: bool, repeats: int, quick_s: float = 300.0, lo
         fast_rate = n_dg / t_fast
         wall_rate = n_dg / statistics.median(r[0] for r in runs)
         split = _split_text(min(runs, key=lambda r: abs(r[2] - t_fast))[1])
+        # sustained: more replays back to back in the same process; the slowest one is the figure
+        more = max(0, SUSTAINED_RUNS - repeats)
+        log(f"replay: fast replay end to end, {more} more back to back")
+        for _ in range(more):
+            run_fast()
+        cpu_all = [r[2] for r in runs]
     slow_repeats = 1  # minutes per run on the whole capture: one run, said in the table
     log(f"replay: exact replay end to end x{slow_repeats} (slow)")
     holder = {}
@@ -262,6 +269,23 @@ def replay_rows(tmp: Path, quick: bool, repeats: int, quick_s: float = 300.0, lo
                 note=""
                 if fast_rate >= 1e6
                 else _throughput_note(core_rate, c_rate, n_meas, n_dg, split, fast_rate),
+            )
+        )
+        slowest = n_dg / max(cpu_all)
+        rows.append(
+            Row(
+                SECTION,
+                f"fast replay, {len(cpu_all)} runs back to back in one process: the slowest, per CPU second",
+                slowest,
+                "datagrams/s",
+                compared=f"median {n_dg / statistics.median(cpu_all):,.0f}/s, "
+                f"fastest {n_dg / min(cpu_all):,.0f}/s "
+                "(the machine's speed varies by up to 1.7x between minutes: the slowest run is the "
+                "sustained figure)",
+                target=">= 1,000,000/s",
+                met=slowest >= 1e6,
+                repeats=len(cpu_all),
+                samples=tuple(n_dg / c for c in cpu_all),
             )
         )
         ratio_naive = fast_rate / naive_rate
