@@ -50,3 +50,22 @@ def test_numba_cache_is_keyed_by_the_sources(tmp_path):
     ).stdout.split()
     assert out[0] == out[1] == str(tmp_path / out[2])
     assert len(out[2]) == 16
+
+
+def test_sfa_command_turns_on_numba_slp_vectorizer_unless_set():
+    code = (
+        "from sfa.cli import configure_numba_codegen\n"
+        "first = configure_numba_codegen()\n"
+        "import numba\n"
+        "print(first, configure_numba_codegen(), numba.config.SLP_VECTORIZE)\n"
+    )
+    env = {k: v for k, v in __import__("os").environ.items() if "NUMBA_SLP" not in k}
+    out = subprocess.run(
+        [sys.executable, "-c", code], capture_output=True, text=True, timeout=120, env=env, check=True
+    ).stdout.split()
+    assert out == ["True", "False", "1"]  # set, then a no-op once numba is imported
+    env["NUMBA_SLP_VECTORIZE"] = "0"  # an explicit setting wins
+    out = subprocess.run(
+        [sys.executable, "-c", code], capture_output=True, text=True, timeout=120, env=env, check=True
+    ).stdout.split()
+    assert out == ["False", "False", "0"]
