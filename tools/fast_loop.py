@@ -53,13 +53,6 @@ def _copy1(dst, src):
 
 
 @njit(cache=False, _nrt=False)
-def _copy_head(dst, src, n):
-    """dst[:n] = src[:n] element by element."""
-    for i in range(n):
-        dst[i] = src[i]
-
-
-@njit(cache=False, _nrt=False)
 def _copy2(dst, src):
     """dst[:, :] = src element by element."""
     for i in range(dst.shape[0]):
@@ -289,7 +282,7 @@ def run_segment(
                 _copy1(SA[h], AUX[h])
                 _copy1(SC[h], CNT[h])
                 if k == 2:  # step_gps does not take mem; step_odo leaves its IMU ring alone
-                    _copy_head(SM[h], MEM[h], L.MEM_HN)
+                    _copy1(SM[h, : L.MEM_HN], MEM[h, : L.MEM_HN])
         code = K.O_INVALID
         accepted = False
         for j in range(nh):
@@ -360,7 +353,7 @@ def run_segment(
                 _copy1(AUX[h], SA[h])
                 _copy1(CNT[h], SC[h])
                 if k == 2:
-                    _copy_head(MEM[h], SM[h], L.MEM_HN)
+                    _copy1(MEM[h, : L.MEM_HN], SM[h, : L.MEM_HN])
             ns[0] = nh
             ns[1] = rep
             return i, STOP_UNDONE

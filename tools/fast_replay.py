@@ -401,14 +401,13 @@ def _replay_ingested(got, track, options, ingest_s: float = 0.0):
     # writes the result columns itself: the per-measurement updates, and a row per estimate sent
     from tools.replay import ESTIMATE_COLUMNS, ReplayResult
 
-    he = len(prefix.est_rows)
-    hu = len(prefix.upd)
     cols = _Columns(prefix, nm)
+    he = cols.he
+    hu = len(prefix.upd)
     filt = pipe.filter
     last = pipe.last_estimate
     state = _FilterRun(
         filt,
-        nm,
         -math.inf if last is None else float(last.epoch_s),
         math.nan if last is None else float(last.arc_length_m),
         cols,
@@ -570,8 +569,8 @@ class _FilterRun:
     """The filter over the packed measurements: compiled segments (tools.fast_loop.run_segment) and the
     rows TrackFilter.process handles, with the listener's output rule over both."""
 
-    def __init__(self, filt, nm: int, last_epoch: float, last_s: float, cols, m_time, seq0: int) -> None:
-        """``cols``: the result columns (u_out, u_nis for the nm measurements; e_f (7, .), e_i (3, .) for
+    def __init__(self, filt, last_epoch: float, last_s: float, cols, m_time, seq0: int) -> None:
+        """``cols``: the result columns (u_out, u_nis per measurement; e_f (7, .), e_i (3, .) for
         the estimates sent, from row ``cols.he`` on, as tools.fast_loop.run_segment writes them)."""
         cfg = filt.config
         self.filt = filt
@@ -763,24 +762,23 @@ class _FilterRun:
         k = int(self.ost[O_ROW]) - 1
         e_f, e_i = self.cols.e_f, self.cols.e_i
         return _estimate_row(
-            self.filt, int(e_i[2, k]), e_f[:, k], int(e_i[1, k]), int(self.ost[O_BITS]), self.z, lat, lon
+            self.filt, int(e_i[2, k]), e_f[:, k], int(e_i[1, k]), int(self.ost[O_BITS]), lat, lon
         )
 
 
-def _estimate_row(filt, line_id: int, f, status: int, bits: int, z, lat, lon):
+def _estimate_row(filt, line_id: int, f, status: int, bits: int, lat, lon):
     """The Estimate the listener holds as its last output (for the metrics snapshot: status, reasons,
     line), from a compiled row (``f``: a column of run_segment's e_f)."""
     from sfa.filter import Estimate
     from sfa.layout import FilterStatus, reasons_from_bits
 
-    s, sig = float(f[1]), float(f[4])
     return Estimate(
         epoch_s=float(f[0]),
-        arc_length_m=s,
+        arc_length_m=float(f[1]),
         speed_mps=float(f[3]),
-        sigma_s_m=sig,
-        interval_low_m=s - z * sig,
-        interval_high_m=s + z * sig,
+        sigma_s_m=float(f[4]),
+        interval_low_m=float(f[5]),  # s -+ z sigma, as put_row wrote it
+        interval_high_m=float(f[6]),
         status=FilterStatus(status),
         reasons=reasons_from_bits(bits),
         line_id=None if line_id < 0 else line_id,
