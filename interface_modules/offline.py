@@ -9,18 +9,19 @@ never changes another module's errors.
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass, field
 
 import numpy as np
 
 from . import faults as faults_mod
+from .asbuilt import ReferenceMap, as_built_line
 from .assemble import Packet, control_messages, control_schedule, send_times, sensor_payloads
 from .errors import SimError
 from .faults import Fault
 from .journey import build_legs
 from .motion import Trajectory, drive
-from .presets import GPS_PRESETS, IMU_PRESETS, ODOMETER_PRESETS
-from .scenario import Scenario, load_scenario, rate_of
+from .scenario import Scenario, actual_spec, load_scenario, rate_of
 from .sensors.gps import simulate_gps
 from .sensors.imu import CantModel, simulate_imu
 from .sensors.odometer import simulate_odometer
@@ -36,6 +37,7 @@ RNG_STREAMS = {
     "net:odometer": 12,
     "net:gps": 13,
     "net:control": 14,
+    "as-built": 21,
 }
 
 
@@ -140,7 +142,8 @@ def generate(
     seed = sc.seed if seed is None else int(seed)
     if seed < 0:
         raise SimError("seed must be >= 0")
-    line = open_line(sc) if track is None else track
+    reference = open_line(sc) if track is None else track
+    sc, line, to_reference = truth_path(sc, reference, seed)
     traj = simulate_truth(sc, line, max_duration_s)
     if traj.t_s.size == 0:
         raise SimError("the scenario produced no motion (empty truth)")
@@ -155,7 +158,7 @@ def generate(
         streams["imu"] = simulate_imu(
             traj,
             line,
-            IMU_PRESETS[sc.imu.preset],
+            actual_spec(sc.imu),
             rate_of(sc, sc.imu),
             faults_mod.of_sensor(all_faults, "imu"),
             rng_for(seed, "imu"),
@@ -165,7 +168,7 @@ def generate(
     if sc.odometer.enabled:
         streams["odometer"] = simulate_odometer(
             traj,
-            ODOMETER_PRESETS[sc.odometer.preset],
+            actual_spec(sc.odometer),
             rate_of(sc, sc.odometer),
             faults_mod.of_sensor(all_faults, "odometer"),
             rng_for(seed, "odometer"),
@@ -175,7 +178,7 @@ def generate(
         streams["gps"] = simulate_gps(
             traj,
             line,
-            GPS_PRESETS[sc.gps.preset],
+            actual_spec(sc.gps),
             rate_of(sc, sc.gps),
             faults_mod.of_sensor(all_faults, "gps"),
             rng_for(seed, "gps"),
@@ -207,7 +210,7 @@ def generate(
         ctl,
         sc.start_epoch_s,
         float(traj.v_mps[0]),
-        float(traj.s_m[0]),
+        float(to_reference(traj.s_m[0])),
         getattr(line, "line_id", None),
         cfaults,
     )
@@ -215,6 +218,7 @@ def generate(
 
     packets = _merge(columns, sc.start_epoch_s, offset)
     truth = truth_arrays(traj, line, sc.start_epoch_s)
+    truth["arc_length"] = np.asarray(to_reference(truth["arc_length"]), dtype=float)
     events_epoch = sorted(((sc.start_epoch_s + t, k, d) for t, k, d in events), key=lambda e: e[0])
     return SimRun(
         scenario=sc,
@@ -226,6 +230,34 @@ def generate(
         trajectory=traj,
         ports={m.name: m.port for m in sc.modules if m.enabled},
     )
+
+
+def truth_path(sc: Scenario, reference, seed: int):
+    """(scenario, line, to_reference): the path the truth runs on and the map of its arc length to the
+    reference line's (the filter's database). With ``track.as_built`` enabled on a database line, the
+    as-built path of ``interface_modules.asbuilt`` (seeded by the scenario seed), the journey's and
+    zones' arc lengths moved onto it; otherwise the reference itself and the identity."""
+    cfg = sc.track.as_built
+    if not cfg.enabled or not hasattr(reference, "east_m"):
+        return sc, reference, _identity
+    built = as_built_line(reference, cfg, rng_for(seed, "as-built"))
+    ref_map = ReferenceMap(built, reference)
+
+    def moved(z):
+        return dataclasses.replace(
+            z, from_m=float(ref_map.inverse(z.from_m)), to_m=float(ref_map.inverse(z.to_m)))
+
+    track = dataclasses.replace(
+        sc.track,
+        speed_limits=tuple(moved(z) for z in sc.track.speed_limits),
+        tunnels=tuple(moved(z) for z in sc.track.tunnels),
+    )
+    journey = tuple(dataclasses.replace(p, s_m=float(ref_map.inverse(p.s_m))) for p in sc.journey)
+    return dataclasses.replace(sc, track=track, journey=journey), built, ref_map
+
+
+def _identity(s):
+    return s
 
 
 def _merge(columns, start_epoch_s: float, offset_s: float) -> list[Packet]:

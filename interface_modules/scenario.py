@@ -10,11 +10,13 @@ seconds from the scenario start (sensor-set time ``start_epoch_s``).
 from __future__ import annotations
 
 import dataclasses
+import math
 import tomllib
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from .asbuilt import AsBuiltConfig
 from .errors import ScenarioError
 from .faults import KIND_SENSOR, Fault
 from .presets import GPS_PRESETS, IMU_PRESETS, ODOMETER_PRESETS
@@ -57,6 +59,9 @@ class TrackConfig:
     segments: tuple[SegmentConfig, ...] = ()  #: geometry for database = "synthetic"
     cant_design_speed_kmh: float | None = None  #: cant balances this speed in curves [km/h]; None: no cant
     max_cant_mm: float = 150.0  #: largest cant [mm]
+    #: the truth's path: the database's line made as-built (interface_modules.asbuilt); disabled, the
+    #: truth runs on the database itself (perfect-knowledge mode, label it so in every table)
+    as_built: AsBuiltConfig = dataclasses.field(default_factory=AsBuiltConfig)
 
 
 @dataclass(frozen=True)
@@ -85,6 +90,9 @@ class ModuleConfig:
     send_delay_s: float = 2.0e-4  #: fixed processing delay from sampling to sending [s]
     send_jitter_s: float = 1.0e-4  #: median of the lognormal extra send delay [s]
     antenna_height_m: float = 3.5  #: GPS antenna above the rail [m] (gps only)
+    #: the sensor's actual errors where they differ from its preset's datasheet figures: (field of the
+    #: preset's spec, value) pairs, from the [sensors.NAME.actual] table (the filter is not told)
+    actual: tuple[tuple[str, float], ...] = ()
 
 
 @dataclass(frozen=True)
@@ -194,8 +202,16 @@ def scenario_from_dict(data: dict[str, Any], *, source: str = "<dict>", base_dir
             "segments",
             "cant_design_speed_kmh",
             "max_cant_mm",
+            "as_built",
         },
     )
+    as_built_t = track_t.get("as_built", {})
+    if not isinstance(as_built_t, dict):
+        raise ScenarioError("track.as_built must be a table")
+    try:
+        as_built = _dataclass_from(AsBuiltConfig, as_built_t, "track.as_built")
+    except ValueError as exc:
+        raise ScenarioError(f"track.{exc}") from None
     track = TrackConfig(
         database=_get(track_t, "track", "database", str, "default"),
         line_id=_get(track_t, "track", "line_id", int, None),
@@ -211,6 +227,7 @@ def scenario_from_dict(data: dict[str, Any], *, source: str = "<dict>", base_dir
         tunnel_gnss_mode=_get(track_t, "track", "tunnel_gnss_mode", str, "no_fix"),
         cant_design_speed_kmh=_get(track_t, "track", "cant_design_speed_kmh", float, None),
         max_cant_mm=_get(track_t, "track", "max_cant_mm", float, 150.0),
+        as_built=as_built,
         segments=tuple(
             _dataclass_from(SegmentConfig, z, f"track.segments[{i}]")
             for i, z in enumerate(_list(track_t, "track", "segments"))
@@ -243,7 +260,12 @@ def scenario_from_dict(data: dict[str, Any], *, source: str = "<dict>", base_dir
         defaults = {"name": name, "port": _DEFAULT_PORTS[name], "preset": _DEFAULT_PRESETS[name]}
         if "name" in t:
             raise ScenarioError(f"sensors.{name}.name is implied by the table name")
-        modules[name] = _dataclass_from(ModuleConfig, {**defaults, **t}, f"sensors.{name}")
+        t = dict(t)
+        actual = t.pop("actual", {})
+        if not isinstance(actual, dict):
+            raise ScenarioError(f"sensors.{name}.actual must be a table")
+        module = _dataclass_from(ModuleConfig, {**defaults, **t}, f"sensors.{name}")
+        modules[name] = dataclasses.replace(module, actual=_actual_pairs(actual, f"sensors.{name}.actual"))
     network = _dataclass_from(NetworkConfig, _table(data, "network"), "network")
     faults_l = data.get("faults", [])
     if not isinstance(faults_l, list):
@@ -334,6 +356,12 @@ def validate(sc: Scenario) -> Scenario:
     for m, table in ((sc.imu, IMU_PRESETS), (sc.odometer, ODOMETER_PRESETS), (sc.gps, GPS_PRESETS)):
         if m.preset not in table:
             raise ScenarioError(f"sensors.{m.name}.preset {m.preset!r} unknown (known: {', '.join(table)})")
+        known = {f.name for f in dataclasses.fields(next(iter(table.values())))}
+        for key, _value in m.actual:
+            if key not in known or key == "rate_hz":
+                raise ScenarioError(
+                    f"sensors.{m.name}.actual.{key}: not an error of the {m.name} model "
+                    f"(known: {', '.join(sorted(known - {'rate_hz'}))})")
     ports = [m.port for m in sc.modules if m.enabled]
     if len(set(ports)) != len(ports):
         raise ScenarioError("each enabled module needs its own source port")
@@ -347,6 +375,18 @@ def validate(sc: Scenario) -> Scenario:
     for f in sc.faults:
         f.validate()
     return sc
+
+
+def actual_spec(module: ModuleConfig):
+    """The sensor's actual error model: its preset's spec with the scenario's ``actual`` values."""
+    table = {"imu": IMU_PRESETS, "odometer": ODOMETER_PRESETS, "gps": GPS_PRESETS}[module.name]
+    spec = table[module.preset]
+    if not module.actual:
+        return spec
+    types = {f.name: f.type for f in dataclasses.fields(spec)}
+    changes = {k: (int(v) if types[k] in ("int", int) else bool(v) if types[k] in ("bool", bool) else v)
+               for k, v in module.actual}
+    return dataclasses.replace(spec, **changes)
 
 
 def rate_of(sc: Scenario, module: ModuleConfig) -> float:
@@ -433,6 +473,15 @@ def _dataclass_from(cls: type, data: Any, where: str) -> Any:
         raise ScenarioError(f"{where}: {exc}") from exc
 
 
+def _actual_pairs(data: dict, where: str) -> tuple[tuple[str, float], ...]:
+    pairs = []
+    for key, value in sorted(data.items()):
+        if isinstance(value, bool) or not isinstance(value, int | float) or not math.isfinite(float(value)):
+            raise ScenarioError(f"{where}.{key} must be a finite number, got {value!r}")
+        pairs.append((str(key), float(value)))
+    return tuple(pairs)
+
+
 def _zone(data: Any, where: str, needs_limit: bool) -> Zone:
     zone = _dataclass_from(Zone, data, where)
     if needs_limit and zone.limit_kmh is None:
@@ -458,6 +507,7 @@ __all__ = [
     "Zone",
     "load_scenario",
     "rate_of",
+    "actual_spec",
     "resolve_scenario_path",
     "scenario_from_dict",
     "scenario_names",

@@ -28,12 +28,29 @@ class FilterConfig:
     no_imu_accel_psd_m2ps3: float = 0.5  #: acceleration PSD while the IMU is timed out [m^2/s^3]
     gravity_mps2: float = 9.80665  #: gravity [m/s^2]
     max_predict_dt_s: float = 0.1  #: longest single prediction step [s]
+    #: map registration: the database's arc length is the digitised polyline's, not the distance the
+    #: train travels on the track as built (corners cut or not, vertices off the track), so the two
+    #: drift apart by a random walk in the distance travelled: Q[S,S] += this |v| h. 1e-3 m^2/m is a
+    #: 0.5 % length error correlated over 50 m ((0.005 * 50)^2 / 50 = 1.25e-3); 0: model-matched [m^2/m]
+    registration_psd_m2pm: float = 1.0e-3
     # --- gyro (optional update gz = v * curvature(s) + b_g)
     use_gyro: bool = True  #: apply the gyro update gz = v curvature(s) + b_g (see docs/filter.md)
     gyro_sigma_radps: float = 0.005  #: gyro white noise and scale error per sample [rad/s]
     #: curvature-model error of the database, counted once per gyro window [1/m] (R += (v sigma)^2);
     #: 1.5e-3 / sqrt(5) = 6.7e-4: the information of the per-sample value 1.5e-3 before the gyro window
     curvature_sigma_inv_m: float = 6.7e-4
+    #: the rest of the curvature-model error comes from the geometry (docs/filter.md, "Curvature error"):
+    #: sigma_k^2 = curvature_sigma^2 + (rel k)^2 + (registration dk/ds)^2, correlated along the track
+    #: over curvature_corr_length_m, so that the gyro windows inside one correlation length share it
+    #: (each window's R is inflated by the number of windows in that length) instead of each counting
+    #: it as new information. Defaults: a digitised map smoothed with the import's 20 m Gaussian
+    #: (track_db BuildConfig.smoothing_sigma_m): the onset of a curve is uncertain by about that
+    #: sigma, the error is correlated over the kernel's width (2 sigma), and a short curve's peak is
+    #: off by a quarter of its value (smoothing lowers it, an as-built path differs from the map).
+    #: rel = registration = corr = 0 is the model-matched form (the database is the true path).
+    curvature_rel_sigma: float = 0.25  #: curvature error as a fraction of the curvature [-]
+    curvature_registration_m: float = 20.0  #: along-track uncertainty of the curvature profile [m]
+    curvature_corr_length_m: float = 40.0  #: correlation length of the curvature error [m]
     #: compensate the body roll in curves (cant) before the gyro update: the roll angle comes from the
     #: accelerometer's lateral/vertical specific force against the expected (v^2 k(s), -g), and the yaw
     #: rate about the vertical is gy sin(roll) + gz cos(roll) (see docs/filter.md) [-]
@@ -241,6 +258,10 @@ class FilterConfig:
         c[L.K_INIT_SIGMA_MY] = self.init_sigma_yaw_misalignment_rad
         c[L.K_INIT_SIGMA_SF] = self.init_sigma_accel_scale
         c[L.K_CURV_SIGMA] = self.curvature_sigma_inv_m
+        c[L.K_CURV_REL] = self.curvature_rel_sigma
+        c[L.K_CURV_REG_M] = self.curvature_registration_m
+        c[L.K_CURV_CORR_M] = self.curvature_corr_length_m
+        c[L.K_Q_REG] = self.registration_psd_m2pm
         c[L.K_GYRO_TILT] = 1.0 if self.gyro_tilt_compensation else 0.0
         c[L.K_INIT_SIGMA_SG] = self.init_sigma_gyro_scale
         c[L.K_Q_SG] = self.gyro_scale_rw_per_rts ** 2

@@ -126,6 +126,9 @@ from sfa.layout import (
     FAULT_REASONS,
     GE,
     GN,
+    K_CURV_CORR_M,
+    K_CURV_REG_M,
+    K_CURV_REL,
     K_CURV_SIGMA,
     K_CUSUM_H,
     K_CUSUM_K,
@@ -174,6 +177,7 @@ from sfa.layout import (
     K_Q_BG,
     K_Q_KO,
     K_Q_NO_IMU,
+    K_Q_REG,
     K_Q_SG,
     K_REACQ_CONSIST_M,
     K_REACQ_S,
@@ -448,7 +452,8 @@ def _predict_step(x, P, aux, cfg, ts, tg, h, imu_ok):
     rs_b = qsb + h * qvb + fsb * qbb
     rv_v = qvv + fvb * qvb  # (F_h Q_B) row v
     rv_b = qvb + fvb * qbb
-    aux[A_QB_SS] = rs_s + h * rs_v + fsb * rs_b + q * h * h * h / 3.0  # Q_h: white acceleration, PSD q
+    # Q_h: white acceleration, PSD q, and the map registration's random walk in distance travelled
+    aux[A_QB_SS] = rs_s + h * rs_v + fsb * rs_b + q * h * h * h / 3.0 + cfg[K_Q_REG] * abs(x[V]) * h
     aux[A_QB_SV] = rs_v + fvb * rs_b + q * h * h / 2.0
     aux[A_QB_SB] = rs_b
     aux[A_QB_VV] = rv_v + fvb * rv_b + q * h
@@ -1082,7 +1087,16 @@ def step_imu(x, P, aux, cnt, mem, cfg, ts, tg, tk, t, fx, fy, fz, wx, wy, wz):
         aux[A_GY_HV] += g1 * k
         aux[A_GY_HSG] += c * x[V] * k
         aux[A_GY_HMX] += wx
-        aux[A_GY_RC] += (x[V] * cfg[K_CURV_SIGMA]) ** 2  # v * curvature error: does not average out
+        # curvature-model error from the geometry: a floor, a share of the curvature itself, and the
+        # curve's onset uncertain by the registration length (sigma_k^2 = s0^2 + (r k)^2 + (l dk/ds)^2)
+        sk2 = cfg[K_CURV_SIGMA] ** 2 + (cfg[K_CURV_REL] * k) ** 2 + (cfg[K_CURV_REG_M] * dk_ds) ** 2
+        # the error is correlated over K_CURV_CORR_M metres: the n_c windows inside that length share
+        # one draw of it, so each counts it n_c times over (n_c = L / distance per window, >= 1)
+        dw = abs(x[V]) * cfg[K_GYRO_AVG_N] * min(max(dt_imu, 1e-3), cfg[K_GYRO_AVG_MAX_S])
+        nc = cfg[K_CURV_CORR_M] / dw if dw > 0.0 else 1.0
+        if not nc > 1.0:
+            nc = 1.0
+        aux[A_GY_RC] += x[V] * x[V] * sk2 * nc  # (v sigma_k)^2 n_c: does not average out
         if aux[A_GY_N] >= cfg[K_GYRO_AVG_N]:
             gyro_window_update(x, P, aux, cnt, cfg)
     else:

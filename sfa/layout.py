@@ -241,7 +241,11 @@ K_GYRO_AVG_MAX_S = 61  #: longest span of one gyro window [s]
 K_SLIP_ARB_LLR = 62  #: GNSS log-likelihood ratio that decides a slip against an accelerometer fault [-]
 #: reported sigma factor while a sensor is faulty or missing: z(fault_confidence) / z(confidence) [-]
 K_FAULT_SIGMA_SCALE = 63
-NCFG = 64
+K_CURV_REL = 64  #: curvature error as a fraction of the database's curvature [-]
+K_CURV_REG_M = 65  #: along-track registration uncertainty of the curvature profile [m]
+K_CURV_CORR_M = 66  #: along-track correlation length of the curvature error [m]
+K_Q_REG = 67  #: map registration: arc-length random walk per metre travelled [m^2/m]
+NCFG = 68
 
 # ---------------------------------------------------------------- measurement kinds and result codes
 M_IMU = 1

@@ -1,61 +1,170 @@
-"""Filter configurations matching the simulator's sensor presets.
+"""Filter configurations for classes of real sensors, from their datasheets.
 
-Built from the very objects the simulator draws its errors from (``interface_modules.presets``), so a
-scenario's sensors and the filter tuned for them cannot drift apart.
+These are the figures an engineer configuring the filter for a train has: the sensor's datasheet
+and the class of receiver, not the errors a simulator happens to draw. They are deliberately not
+built from ``interface_modules.presets`` (the simulator's error models): a filter whose noise model
+is the simulator's own settings is only ever tested on the world it assumes (docs/filter.md,
+"Presets"). The simulator's scenarios set their sensors' actual errors independently
+(``[sensors.NAME.actual]``, docs/simulator.md).
+
+Sources (typical datasheet values; a 1-sigma figure where the datasheet gives a bound is half of it):
+- ``mems-train``: ST ASM330LHH automotive 6-axis IMU (datasheet DS12274): accelerometer noise density
+  60 ug/sqrt(Hz), zero-g offset +-20 mg (10 mg 1-sigma after mounting), sensitivity tolerance +-1 %;
+  gyro rate noise density 5 mdps/sqrt(Hz), zero-rate level +-2 dps (1 dps 1-sigma), sensitivity
+  tolerance +-1 %; LSB 0.061 mg and 4.37 mdps at +-2 g / +-125 dps; bias instability (random walk
+  stand-in) 2e-4 m/s^2/sqrt(s) and 2e-5 rad/s/sqrt(s); mounting misalignment 0.5 deg.
+- ``tactical``: a FOG-based tactical-grade unit (KVH 1750 class): gyro ARW 0.7 deg/sqrt(h)
+  (0.012 deg/s/sqrt(Hz)), bias 1 deg/h; accelerometer 1 mg bias, 25 ug/sqrt(Hz).
+- ``ideal``: no sensor errors (tests and debugging only).
+- ``wheel-odometer``: tachometer on a wheelset: wheel diameter known to 1 % (wear between re-profilings),
+  0.03 m/s noise at low speed, 0.01 m/s resolution.
+- ``doppler-radar``: ground-speed Doppler radar (Deuta DRS05 class): accuracy +-0.5 % (0.25 % 1-sigma
+  scale), 0.02 m/s noise, 0.005 m/s resolution.
+- ``standalone``: single-frequency GNSS receiver with SBAS (u-blox M8 class): horizontal CEP 2.0-2.5 m,
+  i.e. about 1.7-2.1 m per axis, mostly correlated (multipath and atmosphere, 30-120 s): Gauss-Markov
+  1.5 m / 60 s plus 0.8 m white, reported sigma_h about 2 m in open sky.
+- ``dgps``: SBAS/DGPS-corrected: CEP 0.7-1 m: Gauss-Markov 0.5 m / 60 s plus 0.3 m white, sigma_h 0.7 m.
+- ``rtk``: RTK fixed (u-blox ZED-F9P class): 0.01 m + 1 ppm CEP: Gauss-Markov 0.02 m / 60 s plus
+  0.01 m white, sigma_h 0.02 m, 10 Hz.
 """
 
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 
 from sfa.config import FilterConfig
 from sfa.errors import FilterConfigError
 
-#: curvature-model error for simulated data whose yaw rate follows the database's own smoothed
-#: curvature (what remains is the filter's 4 m linear resampling of it) [1/m]. Tracks digitised from
-#: maps need more: the FilterConfig default is 1.5e-3 1/m. Before the gyro model had the cant (roll
-#: compensation), the gyro scale (SG) and the roll-rate coupling (MX), this value had to stand in for
-#: all three and no single value fitted both tram and regional runs (docs/filter.md, Results).
-#: 8e-5 when the gyro updated at every IMU sample with this error counted as white; the gyro window
-#: (5 samples) counts it once per window, as the correlated error it is: 8e-5 / sqrt(5) keeps the
-#: information per 50 ms the same (measured: with 8e-5 unchanged, 6 seeds of tram-urban went from
-#: 95.3 % to 97.6 % coverage, regional-tunnel from 97.7 to 99.2 %).
-CURVATURE_MODEL_INV_M = 3.6e-5
+G_MPS2 = 9.80665  #: standard gravity [m/s^2]
+DEG = math.pi / 180.0  #: one degree [rad]
 
-#: arc-length sigma of GROUND TRUTH [m]. The simulator's control module sends the truth itself (float64)
-#: and the real-data adapters the reference trajectory projected onto the line (cm class); the
-#: FilterConfig default (0.1 m) assumed ten times the simulated error. At a standstill nothing observes
-#: the arc length better than that prior (GNSS is metre class and correlated over 30 s), so it stayed
-#: the interval's width: on standstill-creep (120 s standing after GROUND TRUTH, 20 seeds) the error
-#: was 0.014 m rms against sigma_s 0.100 m (NEES 0.02) and the scenario's coverage 98.5 % (NEES 0.51).
-#: A GROUND TRUTH from a less accurate source needs its own value (FilterConfig.init_sigma_s_m).
+#: arc-length sigma of GROUND TRUTH [m]: a cm-class reference (the control module's own position,
+#: the real-data adapters' reference trajectory projected onto the line). At a standstill nothing
+#: observes the arc length better than that prior (GNSS is metre class and correlated over a
+#: minute), so it stays the interval's width there. A GROUND TRUTH from a coarser source (a stop
+#: marker, a driver's entry) needs its own value (FilterConfig.init_sigma_s_m).
 GROUND_TRUTH_SIGMA_M = 0.01
+
+
+#: cross-track error of a digitised map's centre line against the track as built [m]: a property of
+#: the map, not of the receiver. OSM and GTFS geometry of tram and regional lines is metre class
+#: (vertices from aerial imagery, shapes from timetable tools); an RTK receiver sees that offset
+#: in full, and a smaller value lets it pull the arc length in every curve.
+TRACK_LATERAL_SIGMA_M = 1.0
+
+
+@dataclass(frozen=True)
+class ImuClass:
+    """Datasheet figures of a 6-axis IMU (per axis)."""
+
+    rate_hz: float  #: output rate [Hz]
+    accel_noise_density: float  #: [m/s^2/sqrt(Hz)]
+    accel_bias_sigma: float  #: turn-on bias, 1-sigma [m/s^2]
+    accel_bias_rw: float  #: bias instability as a random walk [m/s^2/sqrt(s)]
+    accel_scale_sigma: float  #: sensitivity tolerance, 1-sigma [-]
+    accel_lsb: float  #: resolution [m/s^2]
+    gyro_noise_density: float  #: [rad/s/sqrt(Hz)]
+    gyro_bias_sigma: float  #: zero-rate level, 1-sigma [rad/s]
+    gyro_bias_rw: float  #: bias instability as a random walk [rad/s/sqrt(s)]
+    gyro_scale_sigma: float  #: sensitivity tolerance, 1-sigma [-]
+    gyro_lsb: float  #: resolution [rad/s]
+    misalignment_sigma: float  #: mounting misalignment, 1-sigma [rad]
+
+
+@dataclass(frozen=True)
+class OdometerClass:
+    """Datasheet figures of a speed sensor."""
+
+    rate_hz: float  #: output rate [Hz]
+    scale_sigma: float  #: scale-factor uncertainty, 1-sigma [-]
+    lsb_mps: float  #: resolution [m/s]
+
+
+@dataclass(frozen=True)
+class GnssClass:
+    """Class figures of a GNSS receiver (horizontal, per axis)."""
+
+    rate_hz: float  #: fix rate [Hz]
+    white_sigma_m: float  #: white part of the position error [m]
+    gm_sigma_m: float  #: correlated (first-order Gauss-Markov) part, steady 1-sigma [m]
+    gm_tau_s: float  #: its correlation time [s]
+    reported_sigma_h_m: float  #: sigma_h the receiver reports in nominal conditions [m]
+
+
+IMU_CLASSES: dict[str, ImuClass] = {
+    "mems-train": ImuClass(
+        rate_hz=100.0,
+        accel_noise_density=60e-6 * G_MPS2,
+        accel_bias_sigma=10e-3 * G_MPS2,
+        accel_bias_rw=2.0e-4,
+        accel_scale_sigma=0.005,
+        accel_lsb=0.061e-3 * G_MPS2,
+        gyro_noise_density=5e-3 * DEG,
+        gyro_bias_sigma=1.0 * DEG,
+        gyro_bias_rw=2.0e-5,
+        gyro_scale_sigma=0.005,
+        gyro_lsb=4.37e-3 * DEG,
+        misalignment_sigma=0.5 * DEG,
+    ),
+    "tactical": ImuClass(
+        rate_hz=100.0,
+        accel_noise_density=25e-6 * G_MPS2,
+        accel_bias_sigma=1e-3 * G_MPS2,
+        accel_bias_rw=1.0e-5,
+        accel_scale_sigma=3e-4,
+        accel_lsb=1e-5 * G_MPS2,
+        gyro_noise_density=0.7 * DEG / 60.0,
+        gyro_bias_sigma=1.0 * DEG / 3600.0,
+        gyro_bias_rw=1e-7,
+        gyro_scale_sigma=1e-4,
+        gyro_lsb=1e-6,
+        misalignment_sigma=0.1 * DEG,
+    ),
+    "ideal": ImuClass(100.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0),
+}
+
+ODOMETER_CLASSES: dict[str, OdometerClass] = {
+    "wheel-odometer": OdometerClass(rate_hz=20.0, scale_sigma=0.01, lsb_mps=0.01),
+    "doppler-radar": OdometerClass(rate_hz=20.0, scale_sigma=0.0025, lsb_mps=0.005),
+    "ideal": OdometerClass(rate_hz=20.0, scale_sigma=0.0, lsb_mps=0.0),
+}
+
+GNSS_CLASSES: dict[str, GnssClass] = {
+    "standalone": GnssClass(rate_hz=1.0, white_sigma_m=0.8, gm_sigma_m=1.5, gm_tau_s=60.0,
+                            reported_sigma_h_m=2.0),
+    "dgps": GnssClass(rate_hz=1.0, white_sigma_m=0.3, gm_sigma_m=0.5, gm_tau_s=60.0, reported_sigma_h_m=0.7),
+    "rtk": GnssClass(rate_hz=10.0, white_sigma_m=0.01, gm_sigma_m=0.02, gm_tau_s=60.0,
+                     reported_sigma_h_m=0.02),
+    "ideal": GnssClass(rate_hz=1.0, white_sigma_m=0.0, gm_sigma_m=0.0, gm_tau_s=60.0,
+                       reported_sigma_h_m=0.001),
+}
 
 
 def filter_config_for(
     imu: str = "mems-train", odometer: str = "wheel-odometer", gps: str = "standalone", **overrides: object
 ) -> FilterConfig:
-    """FilterConfig for a combination of the simulator's IMU, odometer and GPS presets.
+    """FilterConfig for a combination of sensor classes (see the module doc).
 
-    ``overrides`` replace individual fields afterwards (validated like any FilterConfig).
+    ``overrides`` replace individual fields afterwards (validated like any FilterConfig). The gyro's
+    map matching is off (``use_gyro=False``): on paths that are not the database's own it did not
+    measurably help along the track (docs/filter.md, "Results on data the filter was not built
+    with"); ``use_gyro=True`` turns it on with the geometry-derived curvature error.
     """
-    from interface_modules.presets import GPS_PRESETS, IMU_PRESETS, ODOMETER_PRESETS
-
     try:
-        imu_spec = IMU_PRESETS[imu]
-        odo_spec = ODOMETER_PRESETS[odometer]
-        gps_spec = GPS_PRESETS[gps]
+        imu_spec = IMU_CLASSES[imu]
+        odo_spec = ODOMETER_CLASSES[odometer]
+        gps_spec = GNSS_CLASSES[gps]
     except KeyError as exc:
         raise FilterConfigError(
-            f"unknown sensor preset {exc.args[0]!r}; IMU {sorted(IMU_PRESETS)}, odometer "
-            f"{sorted(ODOMETER_PRESETS)}, GPS {sorted(GPS_PRESETS)}"
+            f"unknown sensor preset {exc.args[0]!r}; IMU {sorted(IMU_CLASSES)}, odometer "
+            f"{sorted(ODOMETER_CLASSES)}, GPS {sorted(GNSS_CLASSES)}"
         ) from None
-    g = 9.80665
     # a constant pitch misalignment reads as an along-track bias g * sin(misalignment)
-    pitch_bias = g * math.sin(imu_spec.misalignment_sigma)
-    # unmodelled along-track acceleration once bias, yaw misalignment and scale are states: the
-    # bias random walk between updates, roll/pitch misalignment times vertical-curve forces and
-    # second-order terms, ~0.002 m/s^2 correlated over ~10 s: PSD ~ sigma^2 * 2 tau
+    pitch_bias = G_MPS2 * math.sin(imu_spec.misalignment_sigma)
+    # unmodelled along-track acceleration once bias, yaw misalignment and scale are states (bias
+    # instability between updates, roll/pitch misalignment times vertical-curve forces, second-order
+    # terms), ~0.002 m/s^2 correlated over ~10 s: PSD ~ sigma^2 * 2 tau; at least 0.005
     model_psd = (0.1 * imu_spec.accel_scale_sigma * 10.0) ** 2 * 2.0 * 10.0
     quant = imu_spec.accel_lsb / math.sqrt(12.0) / math.sqrt(imu_spec.rate_hz)
     cfg = FilterConfig(
@@ -66,26 +175,25 @@ def filter_config_for(
         init_sigma_yaw_misalignment_rad=imu_spec.misalignment_sigma,
         init_sigma_accel_scale=imu_spec.accel_scale_sigma,
         gyro_bias_rw_radps_rts=imu_spec.gyro_bias_rw,
-        # gyro white noise per sample and its quantisation; the scale error is the state SG, the
-        # curvature model error enters as (v * CURVATURE_MODEL_INV_M)^2
+        # gyro white noise per sample and its quantisation; the scale error is the state SG
         gyro_sigma_radps=math.hypot(imu_spec.gyro_noise_density * math.sqrt(imu_spec.rate_hz),
                                     imu_spec.gyro_lsb / math.sqrt(12.0)),
         init_sigma_gyro_scale=max(imu_spec.gyro_scale_sigma, 1e-4),
         init_sigma_gyro_roll_coupling_rad=max(imu_spec.misalignment_sigma, 1e-4),
         # a noise-free IMU repeats its samples legitimately: the stuck detector needs sensor noise
         imu_stuck_samples=10 if min(imu_spec.accel_noise_density, imu_spec.gyro_noise_density) > 0.0 else 0,
-        curvature_sigma_inv_m=CURVATURE_MODEL_INV_M,
         init_sigma_gyro_bias_radps=imu_spec.gyro_bias_sigma,
+        use_gyro=False,
         init_sigma_odo_scale=odo_spec.scale_sigma,
         odo_quant_mps=odo_spec.lsb_mps,
-        gps_white_sigma_m=gps_spec.white_sigma_m,
+        gps_white_sigma_m=max(gps_spec.white_sigma_m, 1e-3),
         gps_gm_sigma_m=gps_spec.gm_sigma_m,
         gps_gm_tau_s=gps_spec.gm_tau_s,
         gps_nominal_sigma_h_m=gps_spec.reported_sigma_h_m,
         gps_timeout_s=max(3.0, 3.0 / gps_spec.rate_hz),
         odo_timeout_s=max(0.5, 10.0 / odo_spec.rate_hz),
         imu_timeout_s=max(0.2, 20.0 / imu_spec.rate_hz),
-        track_lateral_sigma_m=min(0.3, 3.0 * gps_spec.white_sigma_m),
+        track_lateral_sigma_m=TRACK_LATERAL_SIGMA_M,
         init_sigma_s_m=GROUND_TRUTH_SIGMA_M,
     )
     return cfg.replace(**overrides) if overrides else cfg

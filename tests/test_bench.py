@@ -228,6 +228,8 @@ def test_bench_quick_writes_a_complete_table(tmp_path):
     required = [
         ("accuracy", "tram-urban", "p95"),
         ("accuracy", "coverage"),
+        ("generalisation", "rtk", "p95"),
+        ("generalisation", "long-outage", "coverage"),
         ("replay", "filter core alone"),
         ("replay", "C reference"),
         ("replay", "fast replay end to end"),
@@ -250,6 +252,8 @@ def test_bench_quick_writes_a_complete_table(tmp_path):
     assert (
         "odometer only" in acc["compared"] and "raw GPS" in acc["compared"] and "FilterPy" in acc["compared"]
     )
+    gen = find("generalisation", "jena-tram", "p95")
+    assert "plain FilterPy EKF" in gen["compared"] and "odometer only" in gen["compared"]
     fast = find("replay", "fast replay end to end")
     assert "identical to the exact replay: True" in fast["compared"]
     sustained = find("replay", "back to back", "slowest")

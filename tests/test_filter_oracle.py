@@ -51,6 +51,7 @@ class Oracle:
         self.roll_compensated = 0
         self.direction = 1.0
         self.window = []  # gyro window: (H row, residual) per sample, residuals kept at the current state
+        self.t_imu = None  # time of the previous IMU sample
         self.window_t0 = None
         self.curv_var = 0.0
 
@@ -97,6 +98,8 @@ class Oracle:
         self.ekf.F, self.ekf.Q = F, Q
         self.ekf.B = np.array([[0.5 * h * h], [h]] + [[0.0]] * (NX - 2))
         self.ekf.predict(u=np.array([[u]]))
+        # map registration: a random walk of the arc length in the distance travelled (at the new speed)
+        self.ekf.P[0, 0] += c.registration_psd_m2pm * abs(self.ekf.x[1, 0]) * h
         self.t = t
 
     def update(self, z, hj, hx, R):
@@ -120,6 +123,8 @@ class Oracle:
 
     def imu(self, m: ImuMeas):
         self.predict(m.t_s)
+        dt_imu = m.t_s - (self.t_imu if self.t_imu is not None else 0.0)
+        self.t_imu = m.t_s
         self.fx, self.fy = m.f_mps2[0], m.f_mps2[1]
         x = self.ekf.x
         if not (self.cfg.use_gyro and abs(x[1, 0]) >= self.cfg.gyro_min_speed_mps):
@@ -144,7 +149,15 @@ class Oracle:
             g1 = c * (1.0 + x[9, 0])
             H = np.zeros((1, NX))
             H[0, 0], H[0, 1], H[0, 6], H[0, 9], H[0, 10] = g1 * x[1, 0] * dk, g1 * k, 1.0, c * x[1, 0] * k, gx
-            R = np.array([[self.cfg.gyro_sigma_radps ** 2 + (x[1, 0] * self.cfg.curvature_sigma_inv_m) ** 2]])
+            # curvature error from the geometry, correlated over curvature_corr_length_m: each window
+            # inside that length carries it (length / distance per window) times over
+            cf = self.cfg
+            sigma_k2 = (cf.curvature_sigma_inv_m ** 2 + (cf.curvature_rel_sigma * k) ** 2
+                        + (cf.curvature_registration_m * dk) ** 2)
+            dt_window = min(max(dt_imu, 1e-3), cf.gyro_average_max_s)
+            per_window_m = abs(x[1, 0]) * cf.gyro_average_samples * dt_window
+            n_c = max(1.0, cf.curvature_corr_length_m / per_window_m)
+            R = np.array([[cf.gyro_sigma_radps ** 2 + x[1, 0] ** 2 * sigma_k2 * n_c]])
 
             def hx(xx):  # gz = c (1 + s_g) v k(s) + b_g + m_x g_x
                 return np.array([[c * (1.0 + xx[9, 0]) * xx[1, 0] * k + xx[6, 0] + xx[10, 0] * gx]])

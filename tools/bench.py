@@ -24,7 +24,7 @@ import sys
 import tempfile
 from pathlib import Path
 
-SECTIONS = ("accuracy", "replay", "listener", "memory", "track")
+SECTIONS = ("accuracy", "generalisation", "replay", "listener", "memory", "track")
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -104,6 +104,10 @@ def run(args: argparse.Namespace) -> int:
                 rows += accuracy_rows(
                     quick, seeds, max_duration_s=120.0 if quick else None, names=args.scenario, log=log
                 )
+            if "generalisation" in only:
+                from tools.bench_generalisation import generalisation_rows
+
+                rows += generalisation_rows(1 if quick else 20, 120.0 if quick else 300.0, log=log)
             if "replay" in only:
                 from tools.bench_replay import replay_rows
 

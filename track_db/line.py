@@ -104,6 +104,11 @@ class TrackLine:
         self._curv_list = self.curvature_per_m.tolist()
         self._grade_list = self.grade.tolist()
 
+    @property
+    def frame(self) -> LocalFrame:
+        """The database's local metric frame (east, north) of this line."""
+        return self._frame
+
     def __repr__(self) -> str:
         return f"TrackLine(line_id={self.line_id}, name={self.name!r}, length_m={self.length_m:.3f})"
 

@@ -190,7 +190,7 @@ static void predict_step(double *x, double *aux, const double *cfg, const double
     double rs_b = qsb + h * qvb + fsb * qbb;
     double rv_v = qvv + fvb * qvb;
     double rv_b = qvb + fvb * qbb;
-    aux[A_QB_SS] = rs_s + h * rs_v + fsb * rs_b + q * h * h * h / 3.0;
+    aux[A_QB_SS] = rs_s + h * rs_v + fsb * rs_b + q * h * h * h / 3.0 + cfg[K_Q_REG] * fabs(x[V]) * h;
     aux[A_QB_SV] = rs_v + fvb * rs_b + q * h * h / 2.0;
     aux[A_QB_SB] = rs_b;
     aux[A_QB_VV] = rv_v + fvb * rv_b + q * h;
@@ -712,7 +712,15 @@ static long step_imu(double *x, double *P, double *aux, long *cnt, double *mem, 
         aux[A_GY_HV] += g1 * k;
         aux[A_GY_HSG] += c * x[V] * k;
         aux[A_GY_HMX] += wx;
-        aux[A_GY_RC] += sq(x[V] * cfg[K_CURV_SIGMA]); /* v * curvature error: does not average out */
+        /* curvature-model error from the geometry: sigma_k^2 = s0^2 + (r k)^2 + (l dk/ds)^2 */
+        double sk2 = sq(cfg[K_CURV_SIGMA]) + sq(cfg[K_CURV_REL] * k) + sq(cfg[K_CURV_REG_M] * dk_ds);
+        /* correlated over K_CURV_CORR_M: the windows inside that length share it (n_c >= 1) */
+        double dtc = dt_imu > 1e-3 ? dt_imu : 1e-3;
+        if (dtc > cfg[K_GYRO_AVG_MAX_S]) dtc = cfg[K_GYRO_AVG_MAX_S];
+        double dw = fabs(x[V]) * cfg[K_GYRO_AVG_N] * dtc;
+        double nc = dw > 0.0 ? cfg[K_CURV_CORR_M] / dw : 1.0;
+        if (!(nc > 1.0)) nc = 1.0;
+        aux[A_GY_RC] += x[V] * x[V] * sk2 * nc; /* (v sigma_k)^2 n_c: does not average out */
         if (aux[A_GY_N] >= cfg[K_GYRO_AVG_N]) gyro_window_update(x, P, aux, cnt, cfg);
     } else {
         aux[A_GY_N] = 0.0; /* a window holds consecutive samples that all qualify */

@@ -1,0 +1,43 @@
+"""The filter on worlds it was not built with: mismatch families x seeds, SFA beside its baselines.
+
+See tools/bench_generalisation.py for the families (as-built truth paths, actual sensor errors drawn
+per seed, the filter on the datasheet presets and the database of the source geometry).
+
+Usage: python benchmarks/bench_generalisation.py [--seeds 20] [--family NAME ...] [--jobs 2]
+       [--duration 300] [--step 0.5]
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+
+def main(argv: list[str] | None = None) -> int:
+    from tools.bench_generalisation import FAMILIES, markdown_table, run_families
+
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--seeds", type=int, default=20, help="seeds per family (default 20)")
+    ap.add_argument("--family", action="append", help="family to run (repeatable; default: all)")
+    ap.add_argument("--jobs", type=int, default=1, help="parallel processes (default 1)")
+    ap.add_argument("--duration", type=float, default=300.0, help="simulated seconds per run (default 300)")
+    ap.add_argument("--step", type=float, default=0.5, help="error sampling step [s] (default 0.5)")
+    args = ap.parse_args(argv)
+    names = args.family or [f.name for f in FAMILIES]
+    if args.seeds < 1 or args.jobs < 1 or args.duration <= 0 or args.step <= 0:
+        ap.error("--seeds and --jobs must be >= 1, --duration and --step > 0")
+    t0 = time.time()
+    rows = run_families(names, args.seeds, args.jobs, args.step, args.duration,
+                        log=lambda m: print(m, file=sys.stderr))
+    print(markdown_table(rows))
+    print(f"\n{args.seeds} seeds x {len(names)} families, first {args.duration:g} s of each run, "
+          f"errors every {args.step:g} s; {time.time() - t0:.0f} s", file=sys.stderr)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
