@@ -31,8 +31,9 @@ class FilterConfig:
     #: map registration: the database's arc length is the digitised polyline's, not the distance the
     #: train travels on the track as built (corners cut or not, vertices off the track), so the two
     #: drift apart by a random walk in the distance travelled: Q[S,S] += this |v| h. 1e-3 m^2/m is a
-    #: 0.5 % length error correlated over 50 m ((0.005 * 50)^2 / 50 = 1.25e-3); 0: model-matched [m^2/m]
-    registration_psd_m2pm: float = 1.0e-3
+    #: 0.5 % length error correlated over 50 m ((0.005 * 50)^2 / 50 = 1.25e-3, the value of
+    #: sfa.presets.datasheet_config_for); 0 (the default here): model-matched [m^2/m]
+    registration_psd_m2pm: float = 0.0
     # --- gyro (optional update gz = v * curvature(s) + b_g)
     use_gyro: bool = True  #: apply the gyro update gz = v curvature(s) + b_g (see docs/filter.md)
     gyro_sigma_radps: float = 0.005  #: gyro white noise and scale error per sample [rad/s]
@@ -47,10 +48,11 @@ class FilterConfig:
     #: (track_db BuildConfig.smoothing_sigma_m): the onset of a curve is uncertain by about that
     #: sigma, the error is correlated over the kernel's width (2 sigma), and a short curve's peak is
     #: off by a quarter of its value (smoothing lowers it, an as-built path differs from the map).
-    #: rel = registration = corr = 0 is the model-matched form (the database is the true path).
-    curvature_rel_sigma: float = 0.25  #: curvature error as a fraction of the curvature [-]
-    curvature_registration_m: float = 20.0  #: along-track uncertainty of the curvature profile [m]
-    curvature_corr_length_m: float = 40.0  #: correlation length of the curvature error [m]
+    #: rel = registration = corr = 0 (the defaults here) is the model-matched form (the database is the
+    #: true path); sfa.presets.datasheet_config_for sets the digitised-map values 0.25, 20 m and 40 m.
+    curvature_rel_sigma: float = 0.0  #: curvature error as a fraction of the curvature [-]
+    curvature_registration_m: float = 0.0  #: along-track uncertainty of the curvature profile [m]
+    curvature_corr_length_m: float = 0.0  #: correlation length of the curvature error [m]
     #: compensate the body roll in curves (cant) before the gyro update: the roll angle comes from the
     #: accelerometer's lateral/vertical specific force against the expected (v^2 k(s), -g), and the yaw
     #: rate about the vertical is gy sin(roll) + gz cos(roll) (see docs/filter.md) [-]

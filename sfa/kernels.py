@@ -1089,14 +1089,15 @@ def step_imu(x, P, aux, cnt, mem, cfg, ts, tg, tk, t, fx, fy, fz, wx, wy, wz):
         aux[A_GY_HMX] += wx
         # curvature-model error from the geometry: a floor, a share of the curvature itself, and the
         # curve's onset uncertain by the registration length (sigma_k^2 = s0^2 + (r k)^2 + (l dk/ds)^2)
-        sk2 = cfg[K_CURV_SIGMA] ** 2 + (cfg[K_CURV_REL] * k) ** 2 + (cfg[K_CURV_REG_M] * dk_ds) ** 2
+        rc = (x[V] * cfg[K_CURV_SIGMA]) ** 2 + (x[V] * (cfg[K_CURV_REL] * k)) ** 2 \
+            + (x[V] * (cfg[K_CURV_REG_M] * dk_ds)) ** 2
         # the error is correlated over K_CURV_CORR_M metres: the n_c windows inside that length share
         # one draw of it, so each counts it n_c times over (n_c = L / distance per window, >= 1)
         dw = abs(x[V]) * cfg[K_GYRO_AVG_N] * min(max(dt_imu, 1e-3), cfg[K_GYRO_AVG_MAX_S])
         nc = cfg[K_CURV_CORR_M] / dw if dw > 0.0 else 1.0
-        if not nc > 1.0:
-            nc = 1.0
-        aux[A_GY_RC] += x[V] * x[V] * sk2 * nc  # (v sigma_k)^2 n_c: does not average out
+        if nc > 1.0:
+            rc *= nc
+        aux[A_GY_RC] += rc  # (v sigma_k)^2 n_c: does not average out
         if aux[A_GY_N] >= cfg[K_GYRO_AVG_N]:
             gyro_window_update(x, P, aux, cnt, cfg)
     else:

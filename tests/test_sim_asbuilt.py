@@ -98,9 +98,9 @@ def test_actual_errors_replace_the_preset_for_the_simulator_only():
         scenario_from_dict(bad)
 
 
-def test_generated_truth_is_in_the_database_frame_and_as_built_is_the_default():
-    sc = scenario_from_dict(_scenario_dict())
-    assert sc.track.as_built.enabled  # mismatch is the default
+def test_generated_truth_is_in_the_database_frame_on_the_as_built_path():
+    sc = scenario_from_dict(_scenario_dict(as_built={"enabled": True}))
+    assert sc.track.as_built.enabled
     run = generate(sc)
     perfect = generate(dataclasses.replace(
         sc, track=dataclasses.replace(sc.track, as_built=AsBuiltConfig(enabled=False))))
@@ -113,5 +113,4 @@ def test_generated_truth_is_in_the_database_frame_and_as_built_is_the_default():
     # the same seed gives the same as-built world
     again = generate(sc)
     np.testing.assert_array_equal(again.truth["lat"], run.truth["lat"])
-    disabled = scenario_from_dict(_scenario_dict(as_built={"enabled": False}))
-    assert not disabled.track.as_built.enabled
+    assert not scenario_from_dict(_scenario_dict()).track.as_built.enabled  # opt-in for now

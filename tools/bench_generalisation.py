@@ -3,7 +3,7 @@
 Every family runs the simulator with the truth on an **as-built** path (``interface_modules.asbuilt``:
 the database's source vertices with rounded corners and a smooth random lateral offset, a different
 path per seed) and with **actual sensor errors drawn per seed** from ranges that differ from the
-filter's datasheet presets (``sfa.presets``). The filter gets the database (``sfa track import``'s
+filter's datasheet presets (``sfa.presets.datasheet_config_for``). The filter gets the database (``sfa track import``'s
 smoothing of the source) and the datasheet preset named by the family, never the drawn errors.
 
 Beside SFA, on the same data: SFA with the gyro's map matching on, the plain FilterPy EKF and
@@ -109,7 +109,7 @@ def family_scenario(family: Family, seed: int, max_duration_s: float | None):
         if name == "gps" and family.gps_rate_hz is not None:
             changes["rate_hz"] = family.gps_rate_hz
         modules[name] = dataclasses.replace(module, **changes)
-    track = sc.track
+    track = dataclasses.replace(sc.track, as_built=dataclasses.replace(sc.track.as_built, enabled=True))
     if family.tunnels:
         track = dataclasses.replace(track, tunnels=track.tunnels + tuple(
             Zone(a, b, name=f"outage {i + 1}") for i, (a, b) in enumerate(family.tunnels)))
@@ -124,7 +124,7 @@ def run_one(args: tuple) -> dict:
     from interface_modules.offline import generate
     from interface_modules.tracks import database_path
     from sfa import baselines
-    from sfa.presets import filter_config_for
+    from sfa.presets import datasheet_config_for
     from tools.bench_replay import load_benchmark_module
     from track_db import TrackDatabase
 
@@ -137,7 +137,7 @@ def run_one(args: tuple) -> dict:
     te, ts = run.truth["epoch"], run.truth["arc_length"]
     grid = np.arange(te[0] + step_s, te[-1], step_s)
     presets = family.filter_presets or (sc.imu.preset, sc.odometer.preset, sc.gps.preset)
-    cfg = filter_config_for(*presets)
+    cfg = datasheet_config_for(*presets)
     out: dict = {"family": family_name, "seed": seed}
     for key, c in (("sfa", cfg), ("sfa-gyro", cfg.replace(use_gyro=True))):
         est, _ = acc.run_sfa(track, c, meas, grid)
