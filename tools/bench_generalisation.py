@@ -3,8 +3,9 @@
 Every family runs the simulator with the truth on an **as-built** path (``interface_modules.asbuilt``:
 the database's source vertices with rounded corners and a smooth random lateral offset, a different
 path per seed) and with **actual sensor errors drawn per seed** from ranges that differ from the
-filter's datasheet presets (``sfa.presets.datasheet_config_for``). The filter gets the database (``sfa track import``'s
-smoothing of the source) and the datasheet preset named by the family, never the drawn errors.
+filter's datasheet presets (``sfa.presets.datasheet_config_for``). The filter gets the database
+(``sfa track import``'s smoothing of the source) and the datasheet preset named by the family,
+never the drawn errors.
 
 Beside SFA, on the same data: SFA with the gyro's map matching on, the plain FilterPy EKF and
 odometer-only dead reckoning. Errors are the along-track distance between the estimate and the
