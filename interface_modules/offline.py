@@ -2,7 +2,8 @@
 
 No sockets, no files, no clocks: ``generate`` is a pure function of the scenario and the seed, so
 the same seed gives byte-identical packets. The train's motion does not depend on the seed (the
-driver is deterministic); every sensor and network error does. Random streams are independent per
+driver is deterministic) unless the truth runs on an as-built path (``track.as_built``), which is
+drawn from the seed; every sensor and network error does. Random streams are independent per
 module (``numpy.random.default_rng([seed, stream])``), so enabling or reconfiguring one module
 never changes another module's errors.
 """
