@@ -54,15 +54,19 @@ def _symmetric_weighted_sums(cells: np.ndarray, step: float, sigma_m: float) -> 
     n = n_cells + 1
     big_m = max(1, int(math.ceil(3.0 * sigma_m / step)))
     big_m = min(big_m, n_cells // 2) if n_cells >= 2 else 1
-    offsets = (np.arange(-big_m, big_m) + 0.5) * step
-    w = np.exp(-0.5 * (offsets / sigma_m) ** 2)
+    # the same bytes on every machine: weights from libm (not numpy's SIMD exp), sums as a fixed
+    # sequence of elementwise multiply-adds (IEEE-exact per element; no BLAS dot/convolve, whose
+    # kernels differ by CPU: the bundled database did not rebuild byte for byte on OpenBLAS's
+    # Haswell kernels after it was built on SkylakeX ones)
+    w = np.array([math.exp(-0.5 * (((k + 0.5) * step) / sigma_m) ** 2) for k in range(-big_m, big_m)])
     out = np.zeros((n,) + cells.shape[1:])
     wsum = np.zeros(n)
-    # interior: full window, i = M .. n-1-M
+    # interior: full window, i = M .. n-1-M: out[i] = sum_k w[k] cells[i - M + k], k in order
     if n - 2 * big_m > 0:
-        for col in range(cells.shape[1]):
-            out[big_m : n - big_m, col] = np.convolve(cells[:, col], w[::-1], mode="valid")
-        wsum[big_m : n - big_m] = w.sum()
+        inner = out[big_m : n - big_m]
+        for k in range(2 * big_m):
+            inner += w[k] * cells[k : k + n - 2 * big_m]
+        wsum[big_m : n - big_m] = math.fsum(w)
     # near the ends: symmetric shrinking windows
     for i in list(range(0, min(big_m, n))) + list(range(max(big_m, n - big_m), n)):
         m = min(big_m, i, n - 1 - i)
@@ -72,8 +76,9 @@ def _symmetric_weighted_sums(cells: np.ndarray, step: float, sigma_m: float) -> 
             wsum[i] = 1.0
             continue
         wk = w[big_m - m : big_m + m]
-        out[i] = wk @ cells[i - m : i + m]
-        wsum[i] = wk.sum()
+        for k in range(2 * m):
+            out[i] += wk[k] * cells[i - m + k]
+        wsum[i] = math.fsum(wk)
     return out, wsum
 
 
@@ -94,7 +99,9 @@ def compute_profile(
     pos = np.column_stack((np.interp(grid, s_m, east_m), np.interp(grid, s_m, north_m)))
     chords = np.diff(pos, axis=0)
     vec, _ = _symmetric_weighted_sums(chords, step, sigma_m)
-    heading = np.unwrap(np.arctan2(vec[:, 0], vec[:, 1]))
+    # libm's atan2 per sample: numpy's vectorised arctan2 differs in the last bit between CPU features
+    heading = np.unwrap(np.array([math.atan2(e, nn) for e, nn in zip(vec[:, 0].tolist(), vec[:, 1].tolist(),
+                                                                    strict=True)]))
     # the end samples only see one cell, centred half a step inside: extrapolate them linearly instead
     if n >= 4:
         heading[0] = 2.0 * heading[1] - heading[2]
