@@ -147,8 +147,8 @@ class ReferenceMap:
         grid = np.arange(0.0, built.length_m, step_m)
         grid = np.append(grid, built.length_m)
         e, nn = built.point_at(grid)
-        proj = reference.project(np.asarray(e), np.asarray(nn))
-        s_ref = np.asarray(proj.s_m if hasattr(proj, "s_m") else proj[0], dtype=float)
+        s_ref, _offset = reference.project(np.asarray(e), np.asarray(nn))
+        s_ref = np.asarray(s_ref, dtype=float)
         self._grid = grid
         self._s_ref = np.maximum.accumulate(np.clip(s_ref, 0.0, reference.length_m))
 

@@ -154,26 +154,20 @@ GNSS_CLASSES: dict[str, GnssClass] = {
 }
 
 
-def datasheet_config_for(
-    imu: str = "mems-train", odometer: str = "wheel-odometer", gps: str = "standalone", **overrides: object
-) -> FilterConfig:
-    """FilterConfig for a combination of sensor classes from their datasheets (see the module doc),
-    with a digitised map's curvature error and registration (docs/filter.md, "The map is not the track").
-
-    ``overrides`` replace individual fields afterwards (validated like any FilterConfig). The gyro's
-    map matching is off (``use_gyro=False``): on paths that are not the database's own it did not
-    measurably help along the track (docs/filter.md, "Results on data the filter was not built
-    with"); ``use_gyro=True`` turns it on with the geometry-derived curvature error.
-    """
+def _lookup(tables: tuple[dict, dict, dict], imu: str, odometer: str, gps: str) -> tuple:
     try:
-        imu_spec = IMU_CLASSES[imu]
-        odo_spec = ODOMETER_CLASSES[odometer]
-        gps_spec = GNSS_CLASSES[gps]
+        return tables[0][imu], tables[1][odometer], tables[2][gps]
     except KeyError as exc:
         raise FilterConfigError(
-            f"unknown sensor preset {exc.args[0]!r}; IMU {sorted(IMU_CLASSES)}, odometer "
-            f"{sorted(ODOMETER_CLASSES)}, GPS {sorted(GNSS_CLASSES)}"
+            f"unknown sensor preset {exc.args[0]!r}; IMU {sorted(tables[0])}, odometer "
+            f"{sorted(tables[1])}, GPS {sorted(tables[2])}"
         ) from None
+
+
+def _build(imu_spec, odo_spec, gps_spec, **model: object) -> FilterConfig:
+    """The FilterConfig of one IMU, odometer and GNSS specification (``ImuClass`` / ``ImuSpec``,
+    ``OdometerClass`` / ``OdometerSpec``, ``GnssClass`` / ``GpsSpec``: the fields read here have the
+    same names and units in both families); ``model`` sets the fields that are not sensor figures."""
     # a constant pitch misalignment reads as an along-track bias g * sin(misalignment)
     pitch_bias = G_MPS2 * math.sin(imu_spec.misalignment_sigma)
     # unmodelled along-track acceleration once bias, yaw misalignment and scale are states (bias
@@ -181,7 +175,7 @@ def datasheet_config_for(
     # terms), ~0.002 m/s^2 correlated over ~10 s: PSD ~ sigma^2 * 2 tau; at least 0.005
     model_psd = (0.1 * imu_spec.accel_scale_sigma * 10.0) ** 2 * 2.0 * 10.0
     quant = imu_spec.accel_lsb / math.sqrt(12.0) / math.sqrt(imu_spec.rate_hz)
-    cfg = FilterConfig(
+    sensors: dict[str, object] = dict(
         accel_noise_density_mps2_rthz=math.hypot(imu_spec.accel_noise_density, quant),
         accel_model_noise_mps2_rthz=max(math.sqrt(model_psd), 0.005),
         accel_bias_rw_mps2_rts=imu_spec.accel_bias_rw,
@@ -197,18 +191,37 @@ def datasheet_config_for(
         # a noise-free IMU repeats its samples legitimately: the stuck detector needs sensor noise
         imu_stuck_samples=10 if min(imu_spec.accel_noise_density, imu_spec.gyro_noise_density) > 0.0 else 0,
         init_sigma_gyro_bias_radps=imu_spec.gyro_bias_sigma,
-        use_gyro=False,
         init_sigma_odo_scale=odo_spec.scale_sigma,
         odo_quant_mps=odo_spec.lsb_mps,
-        gps_white_sigma_m=max(gps_spec.white_sigma_m, 1e-3),
+        gps_white_sigma_m=gps_spec.white_sigma_m,
         gps_gm_sigma_m=gps_spec.gm_sigma_m,
         gps_gm_tau_s=gps_spec.gm_tau_s,
         gps_nominal_sigma_h_m=gps_spec.reported_sigma_h_m,
         gps_timeout_s=max(3.0, 3.0 / gps_spec.rate_hz),
         odo_timeout_s=max(0.5, 10.0 / odo_spec.rate_hz),
         imu_timeout_s=max(0.2, 20.0 / imu_spec.rate_hz),
-        track_lateral_sigma_m=TRACK_LATERAL_SIGMA_M,
         init_sigma_s_m=GROUND_TRUTH_SIGMA_M,
+    )
+    return FilterConfig(**{**sensors, **model})
+
+
+def datasheet_config_for(
+    imu: str = "mems-train", odometer: str = "wheel-odometer", gps: str = "standalone", **overrides: object
+) -> FilterConfig:
+    """FilterConfig for a combination of sensor classes from their datasheets (see the module doc),
+    with a digitised map's curvature error and registration (docs/filter.md, "The map is not the track").
+
+    ``overrides`` replace individual fields afterwards (validated like any FilterConfig). The gyro's
+    map matching is off (``use_gyro=False``): on paths that are not the database's own it did not
+    measurably help along the track (docs/filter.md, "Results on data the filter was not built
+    with"); ``use_gyro=True`` turns it on with the geometry-derived curvature error.
+    """
+    imu_spec, odo_spec, gps_spec = _lookup((IMU_CLASSES, ODOMETER_CLASSES, GNSS_CLASSES), imu, odometer, gps)
+    cfg = _build(
+        imu_spec, odo_spec, gps_spec,
+        use_gyro=False,
+        gps_white_sigma_m=max(gps_spec.white_sigma_m, 1e-3),
+        track_lateral_sigma_m=TRACK_LATERAL_SIGMA_M,
         curvature_rel_sigma=0.25,
         curvature_registration_m=20.0,
         curvature_corr_length_m=40.0,
@@ -226,51 +239,11 @@ def filter_config_for(
     """
     from interface_modules.presets import GPS_PRESETS, IMU_PRESETS, ODOMETER_PRESETS
 
-    try:
-        imu_spec = IMU_PRESETS[imu]
-        odo_spec = ODOMETER_PRESETS[odometer]
-        gps_spec = GPS_PRESETS[gps]
-    except KeyError as exc:
-        raise FilterConfigError(
-            f"unknown sensor preset {exc.args[0]!r}; IMU {sorted(IMU_PRESETS)}, odometer "
-            f"{sorted(ODOMETER_PRESETS)}, GPS {sorted(GPS_PRESETS)}"
-        ) from None
-    g = 9.80665
-    # a constant pitch misalignment reads as an along-track bias g * sin(misalignment)
-    pitch_bias = g * math.sin(imu_spec.misalignment_sigma)
-    # unmodelled along-track acceleration once bias, yaw misalignment and scale are states: the
-    # bias random walk between updates, roll/pitch misalignment times vertical-curve forces and
-    # second-order terms, ~0.002 m/s^2 correlated over ~10 s: PSD ~ sigma^2 * 2 tau
-    model_psd = (0.1 * imu_spec.accel_scale_sigma * 10.0) ** 2 * 2.0 * 10.0
-    quant = imu_spec.accel_lsb / math.sqrt(12.0) / math.sqrt(imu_spec.rate_hz)
-    cfg = FilterConfig(
-        accel_noise_density_mps2_rthz=math.hypot(imu_spec.accel_noise_density, quant),
-        accel_model_noise_mps2_rthz=max(math.sqrt(model_psd), 0.005),
-        accel_bias_rw_mps2_rts=imu_spec.accel_bias_rw,
-        init_sigma_accel_bias_mps2=math.hypot(imu_spec.accel_bias_sigma, pitch_bias),
-        init_sigma_yaw_misalignment_rad=imu_spec.misalignment_sigma,
-        init_sigma_accel_scale=imu_spec.accel_scale_sigma,
-        gyro_bias_rw_radps_rts=imu_spec.gyro_bias_rw,
-        # gyro white noise per sample and its quantisation; the scale error is the state SG, the
-        # curvature model error enters as (v * CURVATURE_MODEL_INV_M)^2
-        gyro_sigma_radps=math.hypot(imu_spec.gyro_noise_density * math.sqrt(imu_spec.rate_hz),
-                                    imu_spec.gyro_lsb / math.sqrt(12.0)),
-        init_sigma_gyro_scale=max(imu_spec.gyro_scale_sigma, 1e-4),
-        init_sigma_gyro_roll_coupling_rad=max(imu_spec.misalignment_sigma, 1e-4),
-        # a noise-free IMU repeats its samples legitimately: the stuck detector needs sensor noise
-        imu_stuck_samples=10 if min(imu_spec.accel_noise_density, imu_spec.gyro_noise_density) > 0.0 else 0,
+    imu_spec, odo_spec, gps_spec = _lookup((IMU_PRESETS, ODOMETER_PRESETS, GPS_PRESETS), imu, odometer, gps)
+    cfg = _build(
+        imu_spec, odo_spec, gps_spec,
+        # the curvature model error enters the gyro's R as (v * CURVATURE_MODEL_INV_M)^2
         curvature_sigma_inv_m=CURVATURE_MODEL_INV_M,
-        init_sigma_gyro_bias_radps=imu_spec.gyro_bias_sigma,
-        init_sigma_odo_scale=odo_spec.scale_sigma,
-        odo_quant_mps=odo_spec.lsb_mps,
-        gps_white_sigma_m=gps_spec.white_sigma_m,
-        gps_gm_sigma_m=gps_spec.gm_sigma_m,
-        gps_gm_tau_s=gps_spec.gm_tau_s,
-        gps_nominal_sigma_h_m=gps_spec.reported_sigma_h_m,
-        gps_timeout_s=max(3.0, 3.0 / gps_spec.rate_hz),
-        odo_timeout_s=max(0.5, 10.0 / odo_spec.rate_hz),
-        imu_timeout_s=max(0.2, 20.0 / imu_spec.rate_hz),
         track_lateral_sigma_m=min(0.3, 3.0 * gps_spec.white_sigma_m),
-        init_sigma_s_m=GROUND_TRUTH_SIGMA_M,
     )
     return cfg.replace(**overrides) if overrides else cfg

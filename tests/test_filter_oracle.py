@@ -68,6 +68,7 @@ class Oracle:
         g = np.interp(m.arc_length_m, self.grade_s, self.grade)
         self.fx = 9.80665 * g / math.sqrt(1 + g * g)  # until the first IMU: constant speed
         self.fy = 0.0
+        self.t_imu = m.t_s  # the kernel's IMU clock starts at the initialisation
         self.t = m.t_s
 
     def predict(self, t):
@@ -123,7 +124,7 @@ class Oracle:
 
     def imu(self, m: ImuMeas):
         self.predict(m.t_s)
-        dt_imu = m.t_s - (self.t_imu if self.t_imu is not None else 0.0)
+        dt_imu = m.t_s - self.t_imu
         self.t_imu = m.t_s
         self.fx, self.fy = m.f_mps2[0], m.f_mps2[1]
         x = self.ekf.x
@@ -214,8 +215,15 @@ class Oracle:
         self.update(np.array([[east], [north]]), hj, hx, R=R)
 
 
-def test_filter_matches_filterpy_oracle_to_1e9(db):
-    cfg = filter_config_for("mems-train", "wheel-odometer", "standalone")
+#: the digitised-map terms of sfa.presets.datasheet_config_for on the model-matched sensor preset: the
+#: geometry curvature error with its correlation inflation, and the map registration random walk
+MAP_TERMS = {"curvature_rel_sigma": 0.25, "curvature_registration_m": 20.0, "curvature_corr_length_m": 40.0,
+             "registration_psd_m2pm": 1.0e-3}
+
+
+@pytest.mark.parametrize("map_terms", [{}, MAP_TERMS], ids=["model-matched", "map-terms"])
+def test_filter_matches_filterpy_oracle_to_1e9(db, map_terms):
+    cfg = filter_config_for("mems-train", "wheel-odometer", "standalone", **map_terms)
     # no standstill in this profile (ZUPT is a separate pseudo-measurement), speeds 8..14 m/s
     profile = Profile(segments=((20.0, 0.3), (20.0, -0.3)), v0_mps=8.0, s0_m=50.0)
     run = generate(db, 1, 300.0, IMU_PRESETS["mems-train"], ODOMETER_PRESETS["wheel-odometer"],

@@ -715,11 +715,13 @@ static long step_imu(double *x, double *P, double *aux, long *cnt, double *mem, 
         /* curvature-model error from the geometry: sigma_k^2 = s0^2 + (r k)^2 + (l dk/ds)^2 */
         double rc = sq(x[V] * cfg[K_CURV_SIGMA]) + sq(x[V] * (cfg[K_CURV_REL] * k)) + sq(x[V] * (cfg[K_CURV_REG_M] * dk_ds));
         /* correlated over K_CURV_CORR_M: the windows inside that length share it (n_c >= 1) */
-        double dtc = dt_imu > 1e-3 ? dt_imu : 1e-3;
-        if (dtc > cfg[K_GYRO_AVG_MAX_S]) dtc = cfg[K_GYRO_AVG_MAX_S];
-        double dw = fabs(x[V]) * cfg[K_GYRO_AVG_N] * dtc;
-        double nc = dw > 0.0 ? cfg[K_CURV_CORR_M] / dw : 1.0;
-        if (nc > 1.0) rc *= nc;
+        if (cfg[K_CURV_CORR_M] > 0.0) {
+            double dtc = dt_imu > 1e-3 ? dt_imu : 1e-3;
+            if (dtc > cfg[K_GYRO_AVG_MAX_S]) dtc = cfg[K_GYRO_AVG_MAX_S];
+            double dw = fabs(x[V]) * cfg[K_GYRO_AVG_N] * dtc;
+            double nc = dw > 0.0 ? cfg[K_CURV_CORR_M] / dw : 1.0;
+            if (nc > 1.0) rc *= nc;
+        }
         aux[A_GY_RC] += rc; /* (v sigma_k)^2 n_c: does not average out */
         if (aux[A_GY_N] >= cfg[K_GYRO_AVG_N]) gyro_window_update(x, P, aux, cnt, cfg);
     } else {
