@@ -83,6 +83,11 @@ class FilterConfig:
     gps_nominal_sigma_h_m: float = 1.5  #: sigma_h the receiver reports in nominal conditions [m]
     track_lateral_sigma_m: float = 0.3  #: cross-track uncertainty of the digitised centre line [m]
     gps_late_max_s: float = 0.5  #: oldest GNSS fix still applied by back-propagation [s]
+    #: memory of the adaptive GNSS error model: sigma_g, tau and sigma_w estimated from the fixes'
+    #: cross-track residuals (sfa.gnss_noise); 0 keeps the three values above fixed [s]
+    gps_adaptive_window_s: float = 0.0
+    #: weight of the values above in those estimates, as seconds of data [s]
+    gps_adaptive_prior_s: float = 30.0
     # --- gates (probability that a fault-free measurement passes)
     gate_prob_odo: float = 0.9999  #: odometer gate, chi-square 1 dof [probability]
     gate_prob_gps: float = 0.9999  #: GNSS gate, chi-square 2 dof [probability]
@@ -170,6 +175,10 @@ class FilterConfig:
                      "init_sigma_v_mps"):
             if not getattr(self, name) > 0:
                 raise FilterConfigError(f"{name} must be > 0, got {getattr(self, name)!r}")
+        if self.gps_adaptive_window_s > 0 and not self.gps_adaptive_prior_s > 0:
+            raise FilterConfigError(
+                "gps_adaptive_prior_s must be > 0 when the GNSS model adapts, "
+                f"got {self.gps_adaptive_prior_s!r}")
         if self.gyro_average_samples < 1 or self.gyro_average_samples != int(self.gyro_average_samples):
             raise FilterConfigError(
                 f"gyro_average_samples must be an integer >= 1, got {self.gyro_average_samples!r}")
@@ -264,6 +273,8 @@ class FilterConfig:
         c[L.K_CURV_REG_M] = self.curvature_registration_m
         c[L.K_CURV_CORR_M] = self.curvature_corr_length_m
         c[L.K_Q_REG] = self.registration_psd_m2pm
+        c[L.K_AD_WINDOW] = self.gps_adaptive_window_s
+        c[L.K_AD_PRIOR] = self.gps_adaptive_prior_s
         c[L.K_GYRO_TILT] = 1.0 if self.gyro_tilt_compensation else 0.0
         c[L.K_INIT_SIGMA_SG] = self.init_sigma_gyro_scale
         c[L.K_Q_SG] = self.gyro_scale_rw_per_rts ** 2

@@ -19,6 +19,7 @@ import math
 import numpy as np
 from numba import njit
 
+from sfa import gnss_noise
 from sfa.layout import (
     A_CUSUM_N,
     A_CUSUM_P,
@@ -28,6 +29,8 @@ from sfa.layout import (
     A_FX_VAR,
     A_FY,
     A_FZ,
+    A_GM_SIG,
+    A_GM_TAU,
     A_GPS_E,
     A_GPS_HOLD,
     A_GPS_N,
@@ -139,14 +142,10 @@ from sfa.layout import (
     K_GATE_GYRO,
     K_GATE_ODO,
     K_GATE_ZUPT,
-    K_GM_SIGMA,
-    K_GM_TAU,
     K_GPS_HOLDOFF_S,
     K_GPS_LATE_MAX,
     K_GPS_MAX_LOGLIK_NIS,
-    K_GPS_NOMINAL_SIGMA_H,
     K_GPS_TIMEOUT,
-    K_GPS_WHITE,
     K_GRAVITY,
     K_GYRO_AVG_MAX_S,
     K_GYRO_AVG_N,
@@ -296,6 +295,23 @@ def geom_at(ts, te, tn, s):
     dn = (tn[i + 1] - tn[i]) / ds  # dn/ds
     u = s - ts[i]
     return te[i] + de * u, tn[i] + dn * u, de, dn
+
+
+@njit(cache=True, _nrt=False, error_model="numpy")
+def cross_track(ts, te, tn, s, east, north):
+    """Signed distance of the point (east, north) from the line, left of the direction of increasing
+    arc length positive [m], the unit normal there and the foot's arc length: the foot found from s by
+    three projections onto the local segment (s <- s + u . (z - h(s))), so the result does not depend on
+    how far s is from the foot along the line."""
+    for _ in range(3):
+        e, n, de, dn = geom_at(ts, te, tn, s)
+        g = math.sqrt(de * de + dn * dn)
+        s += ((east - e) * de + (north - n) * dn) / (g * g)  # s += u . (z - h(s)) / |dh/ds|
+    e, n, de, dn = geom_at(ts, te, tn, s)
+    g = math.sqrt(de * de + dn * dn)
+    ne = -dn / g  # n = (-u_n, u_e)
+    nn = de / g
+    return (east - e) * ne + (north - n) * nn, ne, nn, s
 
 
 @njit(cache=True, _nrt=False, error_model="numpy")
@@ -468,7 +484,7 @@ def sync_block(x, P, aux, cfg, cnt):
     hb = aux[A_PB_H]
     if hb == 0.0:
         return
-    phi = math.exp(-hb / cfg[K_GM_TAU])  # Gauss-Markov transition exp(-H/tau)
+    phi = math.exp(-hb / aux[A_GM_TAU])  # Gauss-Markov transition exp(-H/tau)
     x[GE] *= phi  # e_gnss *= exp(-H/tau)
     x[GN] *= phi
     fsb, fvb = aux[A_PB_SB], aux[A_PB_VB]
@@ -497,7 +513,7 @@ def sync_block(x, P, aux, cfg, cnt):
     P[BA, V] += aux[A_QB_VB]
     P[BA, BA] += aux[A_QB_BB]
     P[KO, KO] += cfg[K_Q_KO] * hb  # .. and the uncoupled random walks: odometer scale
-    gm = cfg[K_GM_SIGMA]
+    gm = aux[A_GM_SIG]
     P[GE, GE] += gm * gm * (1.0 - phi * phi)  # Gauss-Markov driving noise
     P[GN, GN] += gm * gm * (1.0 - phi * phi)
     P[BG, BG] += cfg[K_Q_BG] * hb  # gyro bias
@@ -823,12 +839,13 @@ def step_init(x, P, aux, cnt, mem, cfg, ts, tg, t, s, v, direction):
         sync_block(x, P, aux, cfg, cnt)  # the kept error states' covariance, up to the old state time
     else:
         block_clear(aux)
+        gnss_noise.reset(aux, cfg)  # the GNSS error model: the preset's (and the statistics' prior)
         x[:] = 0.0
         P[:, :] = 0.0
         P[BA, BA] = cfg[K_INIT_SIGMA_BA] ** 2
         P[KO, KO] = cfg[K_INIT_SIGMA_KO] ** 2
-        P[GE, GE] = cfg[K_GM_SIGMA] ** 2
-        P[GN, GN] = cfg[K_GM_SIGMA] ** 2
+        P[GE, GE] = aux[A_GM_SIG] ** 2
+        P[GN, GN] = aux[A_GM_SIG] ** 2
         P[BG, BG] = cfg[K_INIT_SIGMA_BG] ** 2
         P[MY, MY] = cfg[K_INIT_SIGMA_MY] ** 2
         P[SF, SF] = cfg[K_INIT_SIGMA_SF] ** 2
@@ -1246,6 +1263,18 @@ def step_odo(x, P, aux, cnt, mem, cfg, ts, tg, t, speed, sigma):
 
 
 # ============================================================== GNSS
+@njit(cache=True, _nrt=False, error_model="numpy")
+def gps_is_evidence(code, aux, cfg):
+    """Whether a fix's outcome in one hypothesis makes it evidence for scoring the hypotheses: a valid
+    fix (accepted, gated or held off) that this hypothesis explains (NIS inside the gate). A fix that
+    every hypothesis rejects is a sensor fault, not evidence for one of them; a fix held off (a ramp
+    hold-off, a slip under arbitration) is still evidence of where the train is, and without it a
+    hypothesis spawned while every branch was held off could not be refuted."""
+    if code != O_ACCEPTED and code != O_GATED and code != O_HELD_OFF:
+        return False
+    return aux[A_LAST_NIS_GPS] <= cfg[K_GATE_GPS]
+
+
 @njit(cache=True, _nrt=True)  # allocates H: numba's allocator, whatever the caller's flags
 def gps_model(x, ts, te, tn, dl):
     """h(x) = point_at(s - v dl) + (e_gnss, n_gnss) and its Jacobian rows (2 x NX).
@@ -1290,7 +1319,8 @@ def step_gps(x, P, aux, cnt, cfg, ts, te, tn, tg, t, east, north, sigma_h, fix_q
     if t - aux[A_T_GPS] > cfg[K_GPS_TIMEOUT] and aux[A_GPS_REJ] == 0.0:
         # after an outage the receiver computes a new solution: its correlated error restarts from the
         # stationary distribution, uncorrelated with the rest of the state
-        gm = cfg[K_GM_SIGMA]
+        gnss_noise.restart(aux)
+        gm = aux[A_GM_SIG]
         for i in range(NX):
             P[GE, i] = 0.0
             P[i, GE] = 0.0
@@ -1305,13 +1335,14 @@ def step_gps(x, P, aux, cnt, cfg, ts, te, tn, tg, t, east, north, sigma_h, fix_q
     y = np.zeros(2)
     y[0] = east - he  # y = z - h(x)
     y[1] = north - hn
-    # white noise: the preset's white sigma, scaled up when the receiver reports a worse sigma_h
-    sw = cfg[K_GPS_WHITE]
-    if math.isfinite(sigma_h) and sigma_h > 0.0 and sigma_h > cfg[K_GPS_NOMINAL_SIGMA_H]:
-        sw *= sigma_h / cfg[K_GPS_NOMINAL_SIGMA_H]
     tnorm = math.sqrt(de * de + dn * dn)
     ue = de / tnorm
     un = dn / tnorm
+    # the fix's distance from the line into the GNSS error statistics (sfa.gnss_noise)
+    c_x, n_e, n_n, s_foot = cross_track(ts, te, tn, x[S] - x[V] * dl, east, north)
+    gnss_noise.observe(aux, cfg, t, c_x, n_e, n_n, s_foot, sigma_h)
+    # white noise: the model's white sigma, scaled up when the receiver reports a worse sigma_h
+    sw = gnss_noise.white_sigma(aux, sigma_h)
     # R = sw^2 I + sigma_lat^2 n n' (n = unit normal to the track: digitisation/lateral offset)
     sl2 = cfg[K_TRACK_LAT] ** 2
     R = np.zeros((2, 2))

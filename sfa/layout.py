@@ -107,9 +107,34 @@ A_QB_BB = 64  #: [m^2/s^4]
 A_SLIP_LLR = 65
 A_SLIP_S_ODO = 66  #: the odometer's own position during the current slip, integrated from its declaration [m]
 A_SLIP_V_ODO = 67  #: last odometer speed along increasing arc length, scale-corrected [m/s]
+#: The GNSS error model in use (``sfa.gnss_noise``): the preset's values, or their estimates from the
+#: fixes' cross-track residuals when ``gps_adaptive_window_s`` > 0 (docs/filter.md, "Adaptive GNSS
+#: error model").
+A_GM_SIG = 68  #: correlated (Gauss-Markov) error per axis, steady sigma [m]
+A_GM_TAU = 69  #: its correlation time [s]
+A_GW_SIG = 70  #: white error per axis [m]
+A_AD_T = 71  #: time of the last residual taken into the statistics [s] (NaN: none yet)
+A_AD_SH = 72  #: weighted mean of the reported sigma_h [m] (the white error scales with sigma_h / this)
+#: Statistics of the cross-track residual c: AD_NMOM moments E[c(t) c(t - L)], index 0 the lag-0
+#: moment E[c^2], then the history lags AD_LAGS_S; each with its mean lag L and its weight (seconds of
+#: data, capped by the window)
+AD_LAGS_S = (2.0, 5.0, 15.0, 40.0)  #: lags of the moments 1.. [s]
+AD_NMOM = 1 + len(AD_LAGS_S)
+A_AD_M = 73  #: moments [m^2]
+A_AD_L = A_AD_M + AD_NMOM  #: mean lags [s]
+A_AD_W = A_AD_L + AD_NMOM  #: weights [s]
+#: History of residuals at least AD_HIST_SPACING_S apart: a ring of AD_HIST entries of AD_ENTRY values
+#: (t [s], c [m], normal east, normal north, arc length of the foot [m]); A_AD_HN entries are valid,
+#: the next goes to index A_AD_HI
+AD_ENTRY = 5
+A_AD_HN = A_AD_W + AD_NMOM
+A_AD_HI = A_AD_HN + 1
+A_AD_HIST = A_AD_HI + 1
+AD_HIST = 45  #: history entries (covers AD_HIST x AD_HIST_SPACING_S seconds, beyond the longest lag)
+AD_HIST_SPACING_S = 1.0  #: spacing of the history entries [s]
 #: Scratch for the updates (no meaning between calls): P H' (two columns of NX) and the gain K (two
 #: columns of NX). Kept in aux so the compiled updates allocate nothing per measurement.
-A_WK_PHT = 68
+A_WK_PHT = A_AD_HIST + AD_ENTRY * AD_HIST
 A_WK_K = A_WK_PHT + 2 * NX
 NAUX = A_WK_K + 2 * NX
 
@@ -245,7 +270,9 @@ K_CURV_REL = 64  #: curvature error as a fraction of the database's curvature [-
 K_CURV_REG_M = 65  #: along-track registration uncertainty of the curvature profile [m]
 K_CURV_CORR_M = 66  #: along-track correlation length of the curvature error [m]
 K_Q_REG = 67  #: map registration: arc-length random walk per metre travelled [m^2/m]
-NCFG = 68
+K_AD_WINDOW = 68  #: memory of the adaptive GNSS error statistics (0: the preset's model, fixed) [s]
+K_AD_PRIOR = 69  #: weight of the preset's model in those statistics, as seconds of data [s]
+NCFG = 70
 
 # ---------------------------------------------------------------- measurement kinds and result codes
 M_IMU = 1

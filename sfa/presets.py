@@ -214,7 +214,10 @@ def datasheet_config_for(
     ``overrides`` replace individual fields afterwards (validated like any FilterConfig). The gyro's
     map matching is off (``use_gyro=False``): on paths that are not the database's own it did not
     measurably help along the track (docs/filter.md, "Results on data the filter was not built
-    with"); ``use_gyro=True`` turns it on with the geometry-derived curvature error.
+    with"); ``use_gyro=True`` turns it on with the geometry-derived curvature error. The GNSS error
+    model adapts to the receiver's own fixes (``sfa.gnss_noise``, a 600 s memory, the datasheet's
+    figures weighted as 30 s of data): no datasheet states a receiver's correlation time, and the
+    reported sigma_h is often wrong.
     """
     imu_spec, odo_spec, gps_spec = _lookup((IMU_CLASSES, ODOMETER_CLASSES, GNSS_CLASSES), imu, odometer, gps)
     cfg = _build(
@@ -226,6 +229,8 @@ def datasheet_config_for(
         curvature_registration_m=20.0,
         curvature_corr_length_m=40.0,
         registration_psd_m2pm=1.0e-3,
+        gps_adaptive_window_s=600.0,
+        gps_adaptive_prior_s=30.0,
     )
     return cfg.replace(**overrides) if overrides else cfg
 

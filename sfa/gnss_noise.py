@@ -1,0 +1,233 @@
+"""Adaptive GNSS error model: the receiver's error statistics estimated from its own fixes.
+
+The filter models a fix as ``z = p(s) + g + w``: the track point, a correlated error ``g`` (first-order
+Gauss-Markov per axis, steady sigma ``sigma_g``, correlation time ``tau``) and a white error ``w``
+(sigma ``sigma_w``). A receiver's datasheet gives none of the three reliably, and the reported sigma_h
+is often wrong by a factor of two or more. Fixed values that are wrong cost both ways: a ``tau`` that is
+too long makes the filter trust the correlated error state where it has already moved on, a sigma too
+small narrows the interval below the truth.
+
+The fixes carry the statistics themselves. The train is on the track, so the component of
+``z - p(s)`` across the track, ``c = n . (z - p(s))`` (``n`` the track's unit normal), is the GNSS
+error's cross-track component, whatever the estimate's error along the track. With the error isotropic
+in the horizontal, ``c`` has the per-axis statistics:
+
+    E[c(t) c(t - L)] = sigma_g^2 exp(-L / tau)  (L > 0),   E[c^2] = sigma_g^2 + sigma_w^2
+
+(the map's own lateral error adds to both; it is counted as GNSS error, on the safe side).
+Moments at the lag of the previous fix and at ``AD_LAGS_S`` are kept as weighted means with a memory
+of ``gps_adaptive_window_s`` seconds, starting from the preset's model with a weight of
+``gps_adaptive_prior_s`` seconds of data; each residual is clipped at 3 sigma of the current lag-0
+moment (a multipath jump widens the model, it does not blow it up). After each fix the model is
+refitted: ``tau`` by least squares over a logarithmic grid, ``sigma_g^2`` in closed form for it, and
+``sigma_w^2 = E[c^2] - sigma_g^2``. Neither sigma goes below a quarter of the preset's (an interval
+too narrow is a safety defect; the floor keeps one noisy stretch from collapsing it).
+
+With ``gps_adaptive_window_s = 0`` the preset's model is used unchanged and these functions only
+copy it into ``aux``. Slots: ``sfa.layout`` (A_GM_SIG .. A_AD_HIST).
+"""
+
+from __future__ import annotations
+
+import math
+
+from numba import njit
+
+from sfa.layout import (
+    A_AD_HI,
+    A_AD_HIST,
+    A_AD_HN,
+    A_AD_L,
+    A_AD_M,
+    A_AD_SH,
+    A_AD_T,
+    A_AD_W,
+    A_GM_SIG,
+    A_GM_TAU,
+    A_GW_SIG,
+    AD_ENTRY,
+    AD_HIST,
+    AD_HIST_SPACING_S,
+    AD_LAGS_S,
+    AD_NMOM,
+    K_AD_PRIOR,
+    K_AD_WINDOW,
+    K_GM_SIGMA,
+    K_GM_TAU,
+    K_GPS_NOMINAL_SIGMA_H,
+    K_GPS_WHITE,
+)
+
+LAG_TOL_S = 0.6  #: a history entry pairs with a lag L if its age is within L +- this [s]
+MIN_NORMAL_DOT = 0.5  #: pairs whose track normals differ by more than 60 degrees are not used
+#: pairs closer than this along the track are not used: the map's own lateral error is the same at
+#: both, and at a standstill it would pass for a GNSS error that never decorrelates
+MIN_PAIR_DISTANCE_M = 25.0
+CLIP_SIGMA = 3.0  #: residuals are clipped at this many sigma of the current lag-0 moment
+FLOOR_GM = 0.25  #: the correlated error's sigma does not go below this fraction of the preset's [-]
+#: the white error's sigma does not go below this fraction of the preset's: without pairs closer than
+#: the shortest lag it is an extrapolation (E[c^2] minus the fitted sigma_g^2), and a white error
+#: estimated too small makes every fix of a 10 Hz receiver count as independent evidence
+FLOOR_WHITE = 1.0
+#: neither sigma goes above this multiple of the receiver's mean reported sigma_h: where the map's own
+#: lateral error dominates the residual (RTK on a digitised map), the residual says little about GNSS
+CEILING = 4.0
+TAU_MIN_S = 1.0  #: the correlation-time grid: TAU_N values, logarithmic from TAU_MIN_S to TAU_MAX_S
+TAU_MAX_S = 1000.0
+TAU_N = 25
+
+
+@njit(cache=True, inline="always", _nrt=False, error_model="numpy")
+def _lag(i):
+    """Nominal lag of moment i [s] (0: lag 0; then AD_LAGS_S)."""
+    if i == 0:
+        return 0.0
+    return AD_LAGS_S[i - 1]
+
+
+@njit(cache=True, _nrt=False, error_model="numpy")
+def reset(aux, cfg):
+    """The preset's model in use and as the statistics' prior (first initialisation)."""
+    sg = cfg[K_GM_SIGMA]
+    tau = cfg[K_GM_TAU]
+    sw = cfg[K_GPS_WHITE]
+    aux[A_GM_SIG] = sg
+    aux[A_GM_TAU] = tau
+    aux[A_GW_SIG] = sw
+    aux[A_AD_SH] = cfg[K_GPS_NOMINAL_SIGMA_H]
+    aux[A_AD_T] = math.nan
+    for i in range(AD_NMOM):
+        lag = _lag(i)
+        m = sg * sg * math.exp(-lag / tau)  # prior E[c(t) c(t - L)] = sigma_g^2 exp(-L / tau)
+        if i == 0:
+            m += sw * sw  # + sigma_w^2 at lag 0
+        aux[A_AD_M + i] = m
+        aux[A_AD_L + i] = lag
+        aux[A_AD_W + i] = cfg[K_AD_PRIOR]
+    restart(aux)
+
+
+@njit(cache=True, _nrt=False, error_model="numpy")
+def restart(aux):
+    """Forget the residual history (a new receiver solution after an outage: no pairs across it)."""
+    aux[A_AD_HN] = 0.0
+    aux[A_AD_HI] = 0.0
+
+
+@njit(cache=True, inline="always", _nrt=False, error_model="numpy")
+def _accumulate(aux, i, value, lag, h, window):
+    """Weighted mean with growing, then capped, memory: W = min(W + h, window), m += (h / W)(value - m)."""
+    w = min(aux[A_AD_W + i] + h, window)
+    a = h / w
+    aux[A_AD_M + i] += a * (value - aux[A_AD_M + i])
+    aux[A_AD_L + i] += a * (lag - aux[A_AD_L + i])
+    aux[A_AD_W + i] = w
+
+
+@njit(cache=True, inline="always", _nrt=False, error_model="numpy")
+def _store(aux, b, t, c, ne, nn, s):
+    """One residual entry at aux[b:b + AD_ENTRY]."""
+    aux[b] = t
+    aux[b + 1] = c
+    aux[b + 2] = ne
+    aux[b + 3] = nn
+    aux[b + 4] = s
+
+
+@njit(cache=True, inline="always", _nrt=False, error_model="numpy")
+def _pair(aux, i, c, ne, nn, s, b, t, h, window):
+    """Moment i from this residual and the entry at aux[b]: c c' / (n . n'), if the two are far enough
+    apart along the track and their normals close enough."""
+    if abs(s - aux[b + 4]) < MIN_PAIR_DISTANCE_M:
+        return
+    dot = ne * aux[b + 2] + nn * aux[b + 3]
+    if dot > MIN_NORMAL_DOT:
+        _accumulate(aux, i, c * aux[b + 1] / dot, t - aux[b], h, window)
+
+
+@njit(cache=True, _nrt=False, error_model="numpy")
+def fit(aux, cfg):
+    """sigma_g, tau, sigma_w from the moments: tau by least squares over the grid, each moment weighted
+    by its seconds of data (a lag the train never spends 25 m in keeps its prior's small weight),
+    sigma_g^2 in closed form for each tau, sigma_w^2 = E[c^2] - sigma_g^2; floors at FLOOR times the
+    preset's sigmas, ceilings at CEILING times the mean reported sigma_h."""
+    best = math.inf
+    best_tau = cfg[K_GM_TAU]
+    best_s2 = 0.0
+    step = (math.log(TAU_MAX_S) - math.log(TAU_MIN_S)) / (TAU_N - 1)
+    for g in range(TAU_N):
+        tau = math.exp(math.log(TAU_MIN_S) + g * step)
+        num = 0.0
+        den = 0.0
+        for i in range(1, AD_NMOM):
+            e = math.exp(-aux[A_AD_L + i] / tau)
+            num += aux[A_AD_W + i] * aux[A_AD_M + i] * e
+            den += aux[A_AD_W + i] * e * e
+        s2 = max(num / den, 0.0) if den > 0.0 else 0.0  # argmin over s2 of sum w_i (m_i - s2 e_i)^2
+        err = 0.0
+        for i in range(1, AD_NMOM):
+            r = aux[A_AD_M + i] - s2 * math.exp(-aux[A_AD_L + i] / tau)
+            err += aux[A_AD_W + i] * r * r
+        if err < best:
+            best = err
+            best_tau = tau
+            best_s2 = s2
+    m0 = aux[A_AD_M]
+    s2 = min(best_s2, m0)
+    top = CEILING * aux[A_AD_SH]
+    aux[A_GM_SIG] = max(min(math.sqrt(s2), top), FLOOR_GM * cfg[K_GM_SIGMA])
+    aux[A_GM_TAU] = best_tau
+    aux[A_GW_SIG] = max(min(math.sqrt(max(m0 - s2, 0.0)), top), FLOOR_WHITE * cfg[K_GPS_WHITE])
+
+
+@njit(cache=True, _nrt=False, error_model="numpy")
+def observe(aux, cfg, t, c, ne, nn, s, sigma_h):
+    """One fix's cross-track residual c [m] at time t [s], the track normal (ne, nn) and arc length s
+    [m] there, and the reported sigma_h [m] (NaN or <= 0: not reported) into the statistics, then
+    refit. No-op when adaptation is off (K_AD_WINDOW <= 0)."""
+    window = cfg[K_AD_WINDOW]
+    if window <= 0.0 or not (math.isfinite(c) and math.isfinite(t)):
+        return
+    # seconds of data this residual stands for: the time since the previous one, at most 1 s
+    h = 1.0 if math.isnan(aux[A_AD_T]) else min(max(t - aux[A_AD_T], 0.0), 1.0)
+    if h <= 0.0:
+        return
+    aux[A_AD_T] = t
+    lim = CLIP_SIGMA * math.sqrt(aux[A_AD_M])
+    cc = min(max(c, -lim), lim)
+    _accumulate(aux, 0, cc * cc, 0.0, h, window)  # E[c^2]
+    if math.isfinite(sigma_h) and sigma_h > 0.0:
+        aux[A_AD_SH] += (h / aux[A_AD_W]) * (sigma_h - aux[A_AD_SH])  # mean reported sigma_h
+    # E[c(t) c(t')] / (n . n'): the cross-track components of an isotropic error, normals apart
+    n_hist = int(aux[A_AD_HN])
+    for i in range(1, AD_NMOM):
+        lag = _lag(i)
+        j_best = -1
+        d_best = LAG_TOL_S
+        for j in range(n_hist):
+            d = abs(t - aux[A_AD_HIST + AD_ENTRY * j] - lag)
+            if d <= d_best:
+                d_best = d
+                j_best = j
+        if j_best >= 0:
+            _pair(aux, i, cc, ne, nn, s, A_AD_HIST + AD_ENTRY * j_best, t, h, window)
+    # history: one entry per AD_HIST_SPACING_S (a ring)
+    newest = int(aux[A_AD_HI]) - 1
+    if newest < 0:
+        newest = AD_HIST - 1
+    if n_hist == 0 or t - aux[A_AD_HIST + AD_ENTRY * newest] >= AD_HIST_SPACING_S:
+        _store(aux, A_AD_HIST + AD_ENTRY * int(aux[A_AD_HI]), t, cc, ne, nn, s)
+        aux[A_AD_HI] = float((int(aux[A_AD_HI]) + 1) % AD_HIST)
+        aux[A_AD_HN] = float(min(n_hist + 1, AD_HIST))
+    fit(aux, cfg)
+
+
+@njit(cache=True, inline="always", _nrt=False, error_model="numpy")
+def white_sigma(aux, sigma_h):
+    """The white error per axis for a fix reporting sigma_h: the model's, scaled up when the receiver
+    reports a worse sigma_h than its usual (the preset's nominal, or the running mean when adaptive)."""
+    sw = aux[A_GW_SIG]
+    ref = aux[A_AD_SH]
+    if math.isfinite(sigma_h) and sigma_h > 0.0 and sigma_h > ref:
+        sw *= sigma_h / ref
+    return sw
