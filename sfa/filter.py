@@ -344,15 +344,15 @@ class TrackFilter:
             east, north = self._track.to_local(lat, lon)
             east, north = float(east), float(north)
         code = K.O_INVALID
-        evidence = False
+        accepted_by_any = False
         for i, h in enumerate(self._hyps):
             c = K.step_gps(h.x, h.P, h.aux, h.cnt, self._cfg, h.line.s_m, h.line.east_m, h.line.north_m,
                            h.line.grade, t, east, north, sigma_h, fq)
-            evidence |= K.gps_is_evidence(c, h.aux, self._cfg)
+            accepted_by_any |= c == K.O_ACCEPTED
             if i == self._reported:
                 code = c
         nis = float(self._hyps[self._reported].aux[L.A_LAST_NIS_GPS])
-        if len(self._hyps) > 1 and evidence:
+        if len(self._hyps) > 1 and accepted_by_any:
             self._score(L.A_LAST_NIS_GPS)
         if self._junction_map():
             self._spawn_branches()
@@ -379,10 +379,9 @@ class TrackFilter:
         return True
 
     def _score(self, nis_slot: int) -> None:
-        """Hypothesis score: robust log-likelihood -NIS/2 (capped) of odometer and gyro samples that at
-        least one hypothesis accepted and of GNSS fixes that at least one explains (``kernels.
-        gps_is_evidence``; a measurement every hypothesis rejects is a sensor fault, not evidence for one
-        of them); then prune."""
+        """Hypothesis score: robust log-likelihood -NIS/2 (capped) of GNSS fixes, odometer and gyro
+        samples that at least one hypothesis accepted (a measurement every hypothesis rejects is a sensor
+        fault, not evidence for one of them); then prune."""
         cap = self._config.loglik_nis_cap
         for h in self._hyps:
             h.aux[L.A_LOGLIK] -= 0.5 * min(float(h.aux[nis_slot]), cap)

@@ -1263,18 +1263,6 @@ def step_odo(x, P, aux, cnt, mem, cfg, ts, tg, t, speed, sigma):
 
 
 # ============================================================== GNSS
-@njit(cache=True, _nrt=False, error_model="numpy")
-def gps_is_evidence(code, aux, cfg):
-    """Whether a fix's outcome in one hypothesis makes it evidence for scoring the hypotheses: a valid
-    fix (accepted, gated or held off) that this hypothesis explains (NIS inside the gate). A fix that
-    every hypothesis rejects is a sensor fault, not evidence for one of them; a fix held off (a ramp
-    hold-off, a slip under arbitration) is still evidence of where the train is, and without it a
-    hypothesis spawned while every branch was held off could not be refuted."""
-    if code != O_ACCEPTED and code != O_GATED and code != O_HELD_OFF:
-        return False
-    return aux[A_LAST_NIS_GPS] <= cfg[K_GATE_GPS]
-
-
 @njit(cache=True, _nrt=True)  # allocates H: numba's allocator, whatever the caller's flags
 def gps_model(x, ts, te, tn, dl):
     """h(x) = point_at(s - v dl) + (e_gnss, n_gnss) and its Jacobian rows (2 x NX).

@@ -311,8 +311,8 @@ def run_segment(
             else:
                 fq = -1 if not math.isfinite(v[3]) else int(v[3])
                 c = K.step_gps(X[h], PP[h], AUX[h], CNT[h], cfg, ts, te, tn, tg, ti, v[0], v[1], v[2], fq)
-            if (c == K.O_ACCEPTED) if k != 3 else K.gps_is_evidence(c, AUX[h], cfg):
-                accepted = True  # scoring evidence: accepted, or for GNSS sfa.kernels.gps_is_evidence
+            if c == K.O_ACCEPTED:
+                accepted = True
             if j == rep:
                 code = c
         nis = math.nan

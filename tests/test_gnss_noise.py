@@ -1,0 +1,124 @@
+"""sfa.gnss_noise: the adaptive GNSS error model recovers a receiver's error statistics from cross-track
+residuals, keeps its floors and ceiling, ignores a standstill and a lone outlier, and is a no-op when off."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from sfa import gnss_noise as G
+from sfa import layout as L
+from sfa.config import FilterConfig
+
+#: the preset the filter is told: deliberately unlike the receiver simulated below
+PRESET = dict(gps_gm_sigma_m=0.6, gps_gm_tau_s=120.0, gps_white_sigma_m=0.3, gps_nominal_sigma_h_m=2.0)
+
+
+def _cfg(window_s: float = 600.0, **changes) -> np.ndarray:
+    return FilterConfig(**{**PRESET, "gps_adaptive_window_s": window_s, **changes}).to_array()
+
+
+def _receiver(n: int, dt: float, sigma_g: float, tau: float, sigma_w: float, seed: int) -> np.ndarray:
+    """Cross-track GNSS error: first-order Gauss-Markov plus white, sampled every dt."""
+    rng = np.random.default_rng(seed)
+    phi = math.exp(-dt / tau)
+    g = np.empty(n)
+    g[0] = rng.normal(0.0, sigma_g)
+    drive = rng.normal(0.0, sigma_g * math.sqrt(1.0 - phi * phi), n)
+    for k in range(1, n):
+        g[k] = phi * g[k - 1] + drive[k]
+    return g + rng.normal(0.0, sigma_w, n)
+
+
+def _feed(aux, cfg, c, dt, speed_mps=10.0, sigma_h=2.0, t0=1000.0):
+    for k, ck in enumerate(c):
+        # a straight track along east: the normal is north; the train moves at speed_mps
+        G.observe(aux, cfg, t0 + k * dt, float(ck), 0.0, 1.0, speed_mps * k * dt, sigma_h)
+
+
+def _model(aux):
+    return aux[L.A_GM_SIG], aux[L.A_GM_TAU], aux[L.A_GW_SIG]
+
+
+def test_off_keeps_the_preset_exactly():
+    cfg = _cfg(window_s=0.0)
+    aux = np.zeros(L.NAUX)
+    G.reset(aux, cfg)
+    before = aux.copy()
+    _feed(aux, cfg, _receiver(500, 1.0, 2.0, 10.0, 1.0, seed=1), 1.0)
+    np.testing.assert_array_equal(aux, before)
+    assert _model(aux) == (0.6, 120.0, 0.3)
+
+
+@pytest.mark.parametrize("rate_hz", [1.0, 10.0])
+@pytest.mark.parametrize("sigma_g, tau, sigma_w", [(1.2, 15.0, 0.8), (0.8, 60.0, 0.5)])
+def test_recovers_the_receivers_statistics(rate_hz, sigma_g, tau, sigma_w):
+    dt = 1.0 / rate_hz
+    n = int(1800.0 * rate_hz)
+    cfg = _cfg()
+    aux = np.zeros(L.NAUX)
+    G.reset(aux, cfg)
+    _feed(aux, cfg, _receiver(n, dt, sigma_g, tau, sigma_w, seed=7), dt)
+    sg, tau_hat, sw = _model(aux)
+    assert sg == pytest.approx(sigma_g, rel=0.25)
+    assert tau / 2.0 <= tau_hat <= tau * 2.0
+    assert sw == pytest.approx(sigma_w, rel=0.35)
+
+
+def test_floors_and_ceiling():
+    cfg = _cfg()
+    # perfect fixes: the correlated error shrinks to its floor, the white error stays at the preset's
+    aux = np.zeros(L.NAUX)
+    G.reset(aux, cfg)
+    _feed(aux, cfg, np.zeros(1200), 1.0)
+    sg, _, sw = _model(aux)
+    assert sg == pytest.approx(G.FLOOR_GM * 0.6)
+    assert sw == pytest.approx(G.FLOOR_WHITE * 0.3)
+    # residuals of metres from a receiver that reports 5 cm: at most CEILING x its mean sigma_h
+    aux = np.zeros(L.NAUX)
+    G.reset(aux, cfg)
+    _feed(aux, cfg, _receiver(1200, 1.0, 3.0, 20.0, 2.0, seed=3), 1.0, sigma_h=0.05)
+    sg, _, sw = _model(aux)
+    assert 0.05 < aux[L.A_AD_SH] < 0.1  # the mean reported sigma_h, with the 2 m nominal as 30 s of prior
+    assert sg <= G.CEILING * aux[L.A_AD_SH] + 1e-12 and sw <= G.CEILING * aux[L.A_AD_SH] + 1e-12
+    assert sg == pytest.approx(G.CEILING * aux[L.A_AD_SH])  # the ceiling binds, far above the floor
+
+
+def test_standstill_teaches_no_correlation_time():
+    """Pairs closer than MIN_PAIR_DISTANCE_M are not used: at a stop the map's lateral error is
+    constant and would pass for a GNSS error that never decorrelates."""
+    cfg = _cfg()
+    aux = np.zeros(L.NAUX)
+    G.reset(aux, cfg)
+    lagged = slice(L.A_AD_M + 1, L.A_AD_M + L.AD_NMOM)
+    prior = aux[lagged].copy()
+    _feed(aux, cfg, np.full(300, 1.5), 1.0, speed_mps=0.0)  # a constant 1.5 m offset, not moving
+    np.testing.assert_array_equal(aux[lagged], prior)
+    np.testing.assert_array_equal(aux[L.A_AD_W + 1:L.A_AD_W + L.AD_NMOM], cfg[L.K_AD_PRIOR])
+
+
+def test_a_lone_outlier_is_clipped():
+    cfg = _cfg()
+    c = _receiver(900, 1.0, 1.0, 20.0, 0.5, seed=11)
+    a, b = np.zeros(L.NAUX), np.zeros(L.NAUX)
+    G.reset(a, cfg)
+    G.reset(b, cfg)
+    _feed(a, cfg, c, 1.0)
+    c_jump = c.copy()
+    c_jump[450] += 40.0  # one 40 m multipath fix
+    _feed(b, cfg, c_jump, 1.0)
+    # unclipped, 40^2 / 450 s of data would add ~3.6 m^2 to E[c^2]; clipped at 3 sigma it adds < 0.1
+    assert b[L.A_AD_M] - a[L.A_AD_M] < 0.1
+    assert b[L.A_GW_SIG] == pytest.approx(a[L.A_GW_SIG], rel=0.1)
+
+
+def test_restart_forgets_pairs_but_keeps_the_model():
+    cfg = _cfg()
+    aux = np.zeros(L.NAUX)
+    G.reset(aux, cfg)
+    _feed(aux, cfg, _receiver(200, 1.0, 1.0, 20.0, 0.5, seed=5), 1.0)
+    model = _model(aux)
+    G.restart(aux)
+    assert aux[L.A_AD_HN] == 0.0 and _model(aux) == model
