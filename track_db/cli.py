@@ -4,7 +4,32 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import sys
+
+#: ``locate`` warns when the point is further than this from the nearest line [m] (default of --warn-offset-m)
+FAR_OFFSET_M = 100.0
+
+
+def _positive_m(text: str) -> float:
+    """argparse type: a positive finite number of metres (argparse names the option and the value)."""
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a number of metres") from None
+    if not (math.isfinite(value) and value > 0):
+        raise argparse.ArgumentTypeError(f"must be a positive number of metres, got {text!r}")
+    return value
+
+
+def _count_from_1(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a whole number") from None
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"must be >= 1, got {text!r}")
+    return value
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -31,7 +56,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     p.add_argument("--attribution", metavar="TEXT", help="attribution statement (default: from the source)")
     p.add_argument(
         "--max-gap-m",
-        type=float,
+        type=_positive_m,
         default=1000.0,
         metavar="M",
         help="reject vertices further apart (default 1000)",
@@ -42,23 +67,23 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     p.add_argument("--force", action="store_true", help="replace an existing output file")
     p.add_argument(
         "--smoothing-sigma-m",
-        type=float,
+        type=_positive_m,
         default=20.0,
         metavar="M",
         help="Gaussian smoothing of heading/curvature/grade along the track, std dev (default 20)",
     )
     p.add_argument(
-        "--profile-step-m", type=float, default=2.0, metavar="M", help="profile grid step (default 2)"
+        "--profile-step-m", type=_positive_m, default=2.0, metavar="M", help="profile grid step (default 2)"
     )
     p.add_argument(
         "--junction-tolerance-m",
-        type=float,
+        type=_positive_m,
         default=1.0,
         metavar="M",
         help="vertices closer than this are one network node (default 1)",
     )
     p.add_argument(
-        "--default-line", type=int, default=1, metavar="N", help="1-based default line (default 1)"
+        "--default-line", type=_count_from_1, default=1, metavar="N", help="1-based default line (default 1)"
     )
     p.set_defaults(_track=_run_import)
 
@@ -93,6 +118,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     p.add_argument("--track", metavar="TRACK.db", help="track database (default: the bundled one)")
     p.add_argument("--line", type=int, metavar="ID", help="project onto this line only")
     p.add_argument("--json", action="store_true", help="machine-readable output")
+    p.add_argument(
+        "--warn-offset-m",
+        type=_positive_m,
+        default=FAR_OFFSET_M,
+        metavar="M",
+        help=f"warn on stderr when the point is further than this from the line (default {FAR_OFFSET_M:g})",
+    )
     p.set_defaults(_track=_run_locate)
 
 
@@ -252,6 +284,9 @@ def _run_export(args: argparse.Namespace) -> int:
 
 
 def _run_locate(args: argparse.Namespace) -> int:
+    from .geodesy import WGS84, check_latlon
+
+    check_latlon(args.lat, args.lon)  # before opening anything: a clear error naming the value
     with _open(args.track) as db:
         if args.line is not None:
             line = db.line(args.line)
@@ -272,6 +307,16 @@ def _run_locate(args: argparse.Namespace) -> int:
             "heading_deg": float(line.heading_at(s)) * 57.29577951308232 % 360.0,
             "curvature_per_m": float(line.curvature_at(s)),
         }
+    # the geodesic distance: the local frame's offset is distorted far from the network
+    distance_m = float(WGS84.inv(args.lon, args.lat, float(lon), float(lat))[2])
+    if distance_m > args.warn_offset_m:
+        where = f"line {line_id} ({result['line_name']})"
+        where = where if args.line is not None else f"the nearest line, {where}"
+        print(
+            f"warning: ({args.lat:g}, {args.lon:g}) is {_distance_text(distance_m)} from {where}"
+            f" (more than --warn-offset-m {args.warn_offset_m:g} m): not on this track",
+            file=sys.stderr,
+        )
     if args.json:
         print(json.dumps(result, indent=2, ensure_ascii=False))
     else:
@@ -282,3 +327,7 @@ def _run_locate(args: argparse.Namespace) -> int:
             f" heading {result['heading_deg']:.1f} deg, curvature {result['curvature_per_m']:.5f} 1/m)"
         )
     return 0
+
+
+def _distance_text(distance_m: float) -> str:
+    return f"{distance_m / 1000:,.1f} km" if distance_m >= 10_000 else f"{distance_m:,.1f} m"
