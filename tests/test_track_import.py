@@ -161,7 +161,10 @@ def feature(geometry, **props) -> dict:
     [
         ({"type": "FeatureCollection", "features": []}, "empty geometry"),
         (feature({"type": "LineString", "coordinates": []}, name="a"), r"feature 0: empty geometry"),
-        (feature(None, name="a"), r"feature 0: empty geometry \(null\)"),
+        (
+            feature(None, name="a"),
+            r"no LineString or MultiLineString feature selected \(1 features with null geometry skipped\)",
+        ),
         (
             feature({"type": "LineString", "coordinates": [[11.0, 50.0], [11.001, float("nan")]]}),
             r"feature 0 vertex 1: non-finite coordinate",

@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import re
 import sys
 
 #: ``locate`` warns when the point is further than this from the nearest line [m] (default of --warn-offset-m)
@@ -20,6 +21,20 @@ def _positive_m(text: str) -> float:
     if not (math.isfinite(value) and value > 0):
         raise argparse.ArgumentTypeError(f"must be a positive number of metres, got {text!r}")
     return value
+
+
+def _railway_list(text: str) -> tuple[str, ...]:
+    values = tuple(v.strip() for v in text.split(","))
+    if not all(re.fullmatch(r"[a-z_]+", v) for v in values):
+        raise argparse.ArgumentTypeError(f"expected railway=* values such as tram,rail, got {text!r}")
+    return values
+
+
+def _tag_filter(text: str) -> tuple[str, str | None]:
+    key, eq, value = text.partition("=")
+    if not key.strip() or (eq and not value):
+        raise argparse.ArgumentTypeError(f"expected KEY or KEY=VALUE, got {text!r}")
+    return key.strip(), (value if eq else None)
 
 
 def _count_from_1(text: str) -> int:
@@ -38,20 +53,44 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
     p = sub.add_parser(
         "import",
-        help="digitise a track (GeoJSON, GTFS shapes, CSV) into an SQLite track database",
+        help="digitise a track (OSM .osm.pbf/.osm, GeoJSON, GTFS shapes, CSV) into an SQLite track database",
         description="Import lines into a track database. One transaction: on any error nothing is written.",
     )
     p.add_argument(
-        "src", metavar="SRC", help="GeoJSON file, GTFS directory or .zip, or CSV file (lat,lon[,alt])"
+        "src",
+        metavar="SRC",
+        help="OSM .osm.pbf/.osm (needs the [osm] extra), GeoJSON file (an OSM export too), GTFS directory "
+        "or .zip, or CSV file (lat,lon[,alt])",
     )
     p.add_argument("-o", "--output", required=True, metavar="TRACK.db", help="track database to create")
     p.add_argument(
-        "--format", choices=("geojson", "gtfs", "csv"), help="source format (default: from the name)"
+        "--format", choices=("geojson", "gtfs", "csv", "osm"), help="source format (default: from the name)"
     )
     p.add_argument(
         "--route", metavar="NAME", help="GTFS route (short/long name or id); GeoJSON feature ref/name/id"
     )
     p.add_argument("--shape", metavar="ID", help="GTFS shape_id to import")
+    p.add_argument(
+        "--railway",
+        type=_railway_list,
+        default=(),
+        metavar="TYPES",
+        help="OSM/GeoJSON: import these railway=* values only, e.g. tram or tram,light_rail (with their "
+        "route=* relations: rail -> train; default: all track)",
+    )
+    p.add_argument(
+        "--tag",
+        type=_tag_filter,
+        action="append",
+        default=[],
+        metavar="KEY[=VALUE]",
+        help="OSM/GeoJSON: import only relations/ways/features with this tag (repeatable: all must match)",
+    )
+    p.add_argument(
+        "--routes-only",
+        action="store_true",
+        help="OSM: import the route relations only, not the ways that are in no relation",
+    )
     p.add_argument("--name", metavar="LINE", help="name of the line (when the source gives exactly one)")
     p.add_argument("--attribution", metavar="TEXT", help="attribution statement (default: from the source)")
     p.add_argument(
@@ -152,6 +191,9 @@ def _run_import(args: argparse.Namespace) -> int:
         name=args.name,
         max_gap_m=args.max_gap_m,
         attribution=args.attribution,
+        railway=args.railway,
+        tags=tuple(args.tag),
+        routes_only=args.routes_only,
     )
     batch = load_source(args.src, args.format, options)
     if args.append:
@@ -179,7 +221,27 @@ def _run_import(args: argparse.Namespace) -> int:
     for note in batch.notes:
         print(f"note: {note}", file=sys.stderr)
     print(f"{out}: imported {len(ids)} line(s), ids {ids[0]}..{ids[-1]}")
+    _print_radius_report(out, ids)
     return 0
+
+
+#: ``import`` flags a line whose smoothed minimum radius is below this [m] (tram standard minimum ~ 18-25)
+TIGHT_RADIUS_M = 25.0
+
+
+def _print_radius_report(path, ids: list[int]) -> None:
+    """Per imported line: length and minimum curve radius (smoothed profile), tight curves flagged."""
+    from . import TrackDatabase
+
+    with TrackDatabase.open(path) as db:
+        rows = [i for i in db.lines() if i.line_id in set(ids)]
+    total = sum(i.length_m for i in rows)
+    print(f"{len(rows)} lines, {total / 1000:.3f} km; minimum curve radius per line (smoothed):")
+    for i in rows:
+        r = i.min_radius_m
+        radius = f"{r:9.1f} m" if r else "  straight"
+        flag = f"  tight (< {TIGHT_RADIUS_M:g} m)" if r and r < TIGHT_RADIUS_M else ""
+        print(f"{i.line_id:>4}  {i.length_m:10.1f} m  {radius}  {i.name}{flag}")
 
 
 #: branch points closer than this are reported as one junction area by ``info`` [m]
