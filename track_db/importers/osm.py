@@ -344,7 +344,7 @@ def osm_to_batch(data: OsmData, src: Path, options: ImportOptions) -> ImportBatc
     notes: list[str] = []
     skipped = Counter(data.skipped)
     lines: list[LineGeometry] = []
-    stops: dict[tuple[int, int], StopPoint] = {}
+    stops: dict[tuple[int | None, int, int], StopPoint] = {}  #: (line or None, node position)
     line_keys: set[tuple[int, int]] = set()
 
     def add_line(name, coords, refs, label, props):
@@ -408,8 +408,10 @@ def osm_to_batch(data: OsmData, src: Path, options: ImportOptions) -> ImportBatc
         add_line(_line_name(rel.tags, label), res.coords, res.refs, label, props)
         found, unnamed = _stops_of(rel, data)
         unnamed_stops += unnamed
-        for node in found:
-            stops.setdefault(_key(node.lon, node.lat), StopPoint(node.tags["name"], node.lat, node.lon))
+        line = len(lines) - 1
+        for node in found:  # the relation's own stops, each node once per line
+            point = StopPoint(node.tags["name"], node.lat, node.lon, line=line)
+            stops.setdefault((line, *_key(node.lon, node.lat)), point)
 
     # 2. ways in no imported relation, joined through degree-2 nodes
     track = [w for w in data.ways.values() if w.tags.get("railway") in railways or w.osm_id in in_relation]
@@ -460,7 +462,8 @@ def osm_to_batch(data: OsmData, src: Path, options: ImportOptions) -> ImportBatc
         for node in sorted(data.nodes.values(), key=lambda n: n.osm_id):
             is_stop = any(node.tags.get(k) in v for k, v in STOP_TAGS.items())
             if is_stop and node.tags.get("name"):
-                stops.setdefault(_key(node.lon, node.lat), StopPoint(node.tags["name"], node.lat, node.lon))
+                point = StopPoint(node.tags["name"], node.lat, node.lon)
+                stops.setdefault((None, *_key(node.lon, node.lat)), point)
 
     # 3. switches
     switches = sum(
@@ -474,8 +477,8 @@ def osm_to_batch(data: OsmData, src: Path, options: ImportOptions) -> ImportBatc
         0,
         f"OSM: {len(chosen) - skipped['route relations without any member way in the file']} route "
         f"relations and {n_chains} chains of other ways imported (--railway {','.join(railways)}); "
-        f"{len(stops)} stops; {switches} railway=switch nodes and {shared} shared nodes where 3 or more "
-        "track ends meet on the imported track",
+        f"{len({k[1:] for k in stops})} stop nodes ({len(stops)} line stops); {switches} railway=switch "
+        f"nodes and {shared} shared nodes where 3 or more track ends meet on the imported track",
     )
     if missing_members or data.missing_nodes:
         notes.append(
