@@ -233,3 +233,26 @@ def test_attribution_defaults_to_osm_and_the_option_overrides_it():
     assert {g.attribution for g in batch.lines} == {OSM_ATTRIBUTION}
     batch = load_source(GEOJSON, None, ImportOptions(railway=("tram",), routes_only=True, attribution="mine"))
     assert {g.attribution for g in batch.lines} == {"mine"}
+
+
+@needs_osmium
+def test_a_relation_whose_ways_do_not_join_is_skipped_and_named_not_fatal():
+    batch = load_source(PBF, None, ImportOptions(railway=("tram",), max_gap_m=200.0))
+    names = [g.name for g in batch.lines if g.properties["@id"].startswith("relation/")]
+    assert len(names) == 19 and "7 Länsiterminaali–Kruununhaka–Kallio–Länsi-Pasila" not in names
+    assert any(
+        n.startswith(
+            "relation 52947 (7 Länsiterminaali–Kruununhaka–Kallio–Länsi-Pasila): its parts form 2 "
+            "disconnected pieces; the nearest are 264.2 m apart"
+        )
+        for n in batch.notes
+    ), batch.notes
+    assert "1 route relations whose ways do not join within --max-gap-m" in batch.notes[-1]
+    # its ways are not lost: they come in as ways in no relation, every vertex on an imported line
+    on_lines = {
+        (round(lo * 1e7), round(la * 1e7))
+        for g in batch.lines
+        for la, lo in zip(g.lat_deg, g.lon_deg, strict=True)
+    }
+    _, parts = tram_relations_in_the_extract()[52947]
+    assert all((round(lo * 1e7), round(la * 1e7)) in on_lines for p in parts for lo, la in p)

@@ -392,10 +392,18 @@ def osm_to_batch(data: OsmData, src: Path, options: ImportOptions) -> ImportBatc
         if not parts:
             skipped["route relations without any member way in the file"] += 1
             continue
+        try:
+            res = stitch_parts(
+                parts,
+                label=f"{label} ({_line_name(rel.tags, label)})",
+                snap_m=options.snap_m,
+                max_gap_m=options.max_gap_m,
+            )
+        except ImportFailed as exc:  # one relation that cannot be joined does not block the others
+            notes.append(f"{exc}: relation not imported (its ways are imported as ways in no relation)")
+            skipped["route relations whose ways do not join within --max-gap-m"] += 1
+            continue
         in_relation.update(present)
-        res = stitch_parts(
-            parts, label=f"{src.name} {label}", snap_m=options.snap_m, max_gap_m=options.max_gap_m
-        )
         if res.parts_dropped or res.gaps_bridged_m:
             notes.append(
                 f"{label} ({_line_name(rel.tags, label)}): {res.parts_used} parts stitched, "
@@ -412,6 +420,8 @@ def osm_to_batch(data: OsmData, src: Path, options: ImportOptions) -> ImportBatc
         for node in found:  # the relation's own stops, each node once per line
             point = StopPoint(node.tags["name"], node.lat, node.lon, line=line)
             stops.setdefault((line, *_key(node.lon, node.lat)), point)
+
+    n_relations = len(lines)
 
     # 2. ways in no imported relation, joined through degree-2 nodes
     track = [w for w in data.ways.values() if w.tags.get("railway") in railways or w.osm_id in in_relation]
@@ -475,7 +485,7 @@ def osm_to_batch(data: OsmData, src: Path, options: ImportOptions) -> ImportBatc
 
     notes.insert(
         0,
-        f"OSM: {len(chosen) - skipped['route relations without any member way in the file']} route "
+        f"OSM: {n_relations} route "
         f"relations and {n_chains} chains of other ways imported (--railway {','.join(railways)}); "
         f"{len({k[1:] for k in stops})} stop nodes ({len(stops)} line stops); {switches} railway=switch "
         f"nodes and {shared} shared nodes where 3 or more track ends meet on the imported track",
