@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 import shapely
 
-from track_db import TrackDatabase
+from track_db import ImportFailed, TrackDatabase
 from track_db.importers import ImportOptions, load_source
 from track_db.importers.osm import OSM_ATTRIBUTION, OsmData, OsmWay, osm_to_batch
 
@@ -281,3 +281,61 @@ def test_chains_stop_at_branch_points_and_close_loops():
     assert chains == [("1,2", 3), ("3", 2), ("4", 2), ("5,6", 4)]
     assert [g.name for g in batch.lines if g.properties["@ways"] == "1,2"] == ["tram way 1 (+1 ways)"]
     assert "1 shared nodes where 3 or more track ends meet" in batch.notes[0]
+
+
+@pytest.mark.parametrize(
+    ("features", "match"),
+    [
+        (
+            [
+                {
+                    "type": "Feature",
+                    "id": "way/1",
+                    "properties": {"railway": "tram", "@relations": [{"rel": "x"}]},
+                }
+            ],
+            r"feature 0: @relations entry without a relation id: \{'rel': 'x'\}",
+        ),
+        (
+            [{"type": "Feature", "id": "way/1", "properties": "tram"}],
+            r"feature 0: properties must be an object",
+        ),
+        (
+            [
+                {
+                    "type": "Feature",
+                    "id": "way/1",
+                    "properties": {"railway": "tram"},
+                    "geometry": {"type": "LineString", "coordinates": [[11.0, 50.0], [11.0, float("inf")]]},
+                }
+            ],
+            r"feature 0 part 0 vertex 1: non-finite coordinate",
+        ),
+        (
+            [{"type": "Feature", "id": "way/1", "properties": {"railway": "platform"}, "geometry": None}],
+            r"no route relation or railway way selected .*; 1 features with null geometry",
+        ),
+    ],
+)
+def test_bad_osm_geojson_is_a_clear_error_naming_the_feature(tmp_path, features, match):
+    src = tmp_path / "bad.geojson"
+    src.write_text(json.dumps({"type": "FeatureCollection", "features": features}), encoding="utf-8")
+    with pytest.raises(ImportFailed, match=match):
+        load_source(src, None, ImportOptions())
+
+
+@needs_osmium
+@pytest.mark.parametrize(
+    ("name", "content", "match"),
+    [
+        ("random.osm.pbf", bytes(range(256)) * 8, r"random.osm.pbf: cannot read as OSM data: PBF error"),
+        ("empty.osm.pbf", b"", r"empty.osm.pbf: cannot read as OSM data"),
+        ("cut.osm", b'<osm><node id="1" lat="x"', r"cut.osm: cannot read as OSM data"),
+    ],
+)
+def test_unreadable_osm_files_are_one_line_errors(tmp_path, name, content, match):
+    (tmp_path / name).write_bytes(content)
+    r = sfa("import", str(tmp_path / name), "-o", str(tmp_path / "t.db"))
+    assert r.returncode == 2 and r.stderr.count("\n") == 1, r.stderr
+    assert re.search(match, r.stderr), r.stderr
+    assert not (tmp_path / "t.db").exists()

@@ -122,6 +122,8 @@ def load_geojson(src: Path, options: ImportOptions) -> ImportBatch:
         if not isinstance(feat, dict) or feat.get("type") != "Feature":
             raise ImportFailed(f"{where}: not a GeoJSON Feature")
         props = feat.get("properties") or {}
+        if not isinstance(props, dict):
+            raise ImportFailed(f"{where}: properties must be an object, got {props!r}")
         geom = feat.get("geometry")
         if geom is None:
             nulls += 1  # e.g. a relation an export could not give a geometry

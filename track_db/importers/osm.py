@@ -179,6 +179,8 @@ def is_osm_geojson(feats: list) -> bool:
         if not isinstance(feat, dict):
             continue
         props = feat.get("properties") or {}
+        if not isinstance(props, dict):
+            continue  # reported by the reader that reads it
         if "@relations" in props:
             return True
         ident = _osm_id(feat, props)
@@ -224,6 +226,8 @@ def from_geojson_features(feats: list, positions) -> OsmData:
         if not isinstance(feat, dict) or feat.get("type") != "Feature":
             raise ImportFailed(f"{where}: not a GeoJSON Feature")
         props = feat.get("properties") or {}
+        if not isinstance(props, dict):
+            raise ImportFailed(f"{where}: properties must be an object, got {props!r}")
         geom = feat.get("geometry")
         ident = _osm_id(feat, props)
         if ident is None:
@@ -245,9 +249,10 @@ def from_geojson_features(feats: list, positions) -> OsmData:
         if not isinstance(geom, dict):
             raise ImportFailed(f"{where}: geometry is not a GeoJSON object")
         for m in props.get("@relations") or []:
-            if not isinstance(m, dict) or "rel" not in m:
-                continue
-            rel = relation(int(m["rel"]), m.get("reltags"))
+            rel_id = m.get("rel") if isinstance(m, dict) else None
+            if not (isinstance(rel_id, int) or (isinstance(rel_id, str) and rel_id.isdigit())):
+                raise ImportFailed(f"{where}: @relations entry without a relation id: {m!r}")
+            rel = relation(int(rel_id), m.get("reltags") if isinstance(m.get("reltags"), dict) else None)
             (rel.ways if kind == "way" else rel.nodes).append((osm_id, str(m.get("role") or "")))
         tags = _tags(props)
         if kind == "node" and geom.get("type") == "Point":
