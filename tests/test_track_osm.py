@@ -292,6 +292,7 @@ def test_chains_stop_at_branch_points_and_close_loops():
                     "type": "Feature",
                     "id": "way/1",
                     "properties": {"railway": "tram", "@relations": [{"rel": "x"}]},
+                    "geometry": {"type": "LineString", "coordinates": [[11.0, 50.0], [11.001, 50.0]]},
                 }
             ],
             r"feature 0: @relations entry without a relation id: \{'rel': 'x'\}",
