@@ -340,3 +340,20 @@ def test_unreadable_osm_files_are_one_line_errors(tmp_path, name, content, match
     assert r.returncode == 2 and r.stderr.count("\n") == 1, r.stderr
     assert re.search(match, r.stderr), r.stderr
     assert not (tmp_path / "t.db").exists()
+
+
+def test_overpass_geojson_route_relations_without_pyosmium(tmp_path):
+    """Runs everywhere (no extra): one line per route=tram relation of the export, named by it."""
+    doc = json.loads(GEOJSON.read_text(encoding="utf-8"))
+    expected = sorted(
+        (int(f["id"].split("/")[1]), f["properties"]["name"])
+        for f in doc["features"]
+        if f["id"].startswith("relation/") and f["properties"].get("route") == "tram"
+    )
+    out = tmp_path / "t.db"
+    r = sfa("import", str(GEOJSON), "-o", str(out), "--railway", "tram", "--routes-only", without_osmium=True)
+    assert r.returncode == 0, r.stderr
+    db = TrackDatabase.open(out)
+    got = [(int(i.properties["@id"].split("/")[1]), i.name) for i in db.lines()]
+    assert got == expected and len(got) == 20
+    assert "20 lines, 33.224 km; minimum curve radius per line" in r.stdout

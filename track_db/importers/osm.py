@@ -125,7 +125,13 @@ def read_osm_file(src: Path) -> OsmData:
         ) from None
     data = OsmData()
     try:
-        processor = osmium.FileProcessor(str(src)).with_locations()
+        # node locations are cached before the filter, so ways keep their untagged nodes' positions;
+        # the filter only spares Python the objects that cannot matter (untagged nodes, other ways)
+        processor = (
+            osmium.FileProcessor(str(src))
+            .with_locations()
+            .with_filter(osmium.filter.KeyFilter("railway", "public_transport", "route"))
+        )
         for obj in processor:
             if obj.is_node():
                 tags = dict(obj.tags)
