@@ -357,3 +357,24 @@ def test_overpass_geojson_route_relations_without_pyosmium(tmp_path):
     got = [(int(i.properties["@id"].split("/")[1]), i.name) for i in db.lines()]
     assert got == expected and len(got) == 20
     assert "20 lines, 33.224 km; minimum curve radius per line" in r.stdout
+
+
+def test_appended_osm_lines_keep_their_own_stops(tmp_path):
+    out = tmp_path / "t.db"
+    common = ("--railway", "tram", "--routes-only")
+    r = sfa("import", str(GEOJSON), "-o", str(out), *common, "--tag", "ref=1", without_osmium=True)
+    assert r.returncode == 0, r.stderr
+    r = sfa(
+        "import", str(GEOJSON), "-o", str(out), *common, "--tag", "ref=2", "--append", without_osmium=True
+    )
+    assert r.returncode == 0, r.stderr
+    db = TrackDatabase.open(out)
+    assert [i.properties["ref"] for i in db.lines()] == ["1", "1", "2", "2"]
+    # a stop belongs to its relation's line: the same nodes imported alone give the same stops
+    alone = tmp_path / "alone.db"
+    r = sfa("import", str(GEOJSON), "-o", str(alone), *common, "--tag", "ref=2", without_osmium=True)
+    assert r.returncode == 0, r.stderr
+    ref = TrackDatabase.open(alone)
+    for k in (1, 2):
+        got = [(s.name, round(s.s_m, 6)) for s in db.stops(k + 2)]
+        assert got == [(s.name, round(s.s_m, 6)) for s in ref.stops(k)] and got

@@ -67,7 +67,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--format", choices=("geojson", "gtfs", "csv", "osm"), help="source format (default: from the name)"
     )
     p.add_argument(
-        "--route", metavar="NAME", help="GTFS route (short/long name or id); GeoJSON feature ref/name/id"
+        "--route",
+        metavar="NAME",
+        help="GTFS route (short/long name or id); GeoJSON feature or OSM route relation ref/name/id",
     )
     p.add_argument("--shape", metavar="ID", help="GTFS shape_id to import")
     p.add_argument(
