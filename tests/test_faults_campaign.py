@@ -266,3 +266,14 @@ def test_live_listener_runs_at_the_deployed_priority():
         assert got == max(before + LISTENER_NICE, -20)
     else:
         assert got in (before, max(before + LISTENER_NICE, -20))
+
+
+@pytest.mark.parametrize("jobs", ["0", "-2"])
+def test_campaign_jobs_below_one_is_a_one_line_error_naming_it(jobs, tmp_path, capsys):
+    from sfa import cli
+
+    args = ["faults", "campaign", "tools/faults/campaigns/quick.toml", "--jobs", jobs, "--out", str(tmp_path)]
+    assert cli.main(args) == 2
+    err = capsys.readouterr().err
+    assert err == f"sfa faults: error: --jobs must be >= 1, got {jobs}\n"
+    assert not any(tmp_path.iterdir())  # nothing was run

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import re
 import subprocess
 import sys
 
@@ -114,3 +115,53 @@ def test_every_subcommand_has_help(sub, capsys):
         cli.main(["track", sub, "--help"])
     assert exc.value.code == 0
     assert "usage: sfa track " + sub in capsys.readouterr().out
+
+
+def test_locate_out_of_range_latitude_is_a_one_line_error_naming_it():
+    r = sfa("locate", "200", "11.6")
+    assert r.returncode == 2
+    assert r.stderr == "sfa track: error: latitude 200 deg is outside -90..90 deg\n"
+    r = sfa("locate", "50.9", "-181")
+    assert r.returncode == 2
+    assert r.stderr == "sfa track: error: longitude -181 deg is outside -180..180 deg\n"
+
+
+def test_locate_far_from_every_line_warns_naming_the_distance():
+    r = sfa("locate", "0", "0")
+    assert r.returncode == 0, r.stderr
+    # Jena is ~5,745 km from (0, 0) along the WGS84 geodesic
+    assert re.fullmatch(
+        r"warning: \(0, 0\) is 5,7\d\d\.\d km from the nearest line, line \d+ \(.+\) "
+        r"\(more than --warn-offset-m 100 m\): not on this track\n",
+        r.stderr,
+    ), r.stderr
+    db = TrackDatabase.open(default_database_path())
+    lat, lon = db.line(2).latlon_at(5000.0)
+    r = sfa("locate", f"{float(lat):.9f}", f"{float(lon):.9f}")
+    assert r.returncode == 0 and r.stderr == ""  # on the track: no warning
+    off = ("--line", "2", "--warn-offset-m", "50", "--json")
+    r = sfa("locate", f"{float(lat) + 0.001:.9f}", f"{float(lon):.9f}", *off)
+    assert r.returncode == 0
+    m = re.fullmatch(r"warning: .* is (\d+\.\d) m from line 2 \(3: Lobeda-Ost -> Jena-Ost\) .*\n", r.stderr)
+    assert m, r.stderr
+    # the named distance is the lateral offset (a point beside the line, not beyond its end)
+    assert 50 < float(m.group(1)) == pytest.approx(abs(json.loads(r.stdout)["offset_m"]), abs=0.1)
+
+
+@pytest.mark.parametrize(
+    ("option", "value", "message"),
+    [
+        ("--smoothing-sigma-m", "-3", "must be a positive number of metres, got '-3'"),
+        ("--profile-step-m", "0", "must be a positive number of metres, got '0'"),
+        ("--max-gap-m", "nan", "must be a positive number of metres, got 'nan'"),
+        ("--junction-tolerance-m", "one", "'one' is not a number of metres"),
+        ("--default-line", "0", "must be >= 1, got '0'"),
+    ],
+)
+def test_import_options_out_of_range_name_the_option_and_value(tmp_path, csv_track, option, value, message):
+    out = tmp_path / "t.db"
+    r = sfa("import", str(csv_track), "-o", str(out), option, value)
+    assert r.returncode == 2
+    assert r.stderr.splitlines()[-1] == f"sfa track import: error: argument {option}: {message}"
+    assert "BuildConfig" not in r.stderr and "Traceback" not in r.stderr
+    assert not out.exists()

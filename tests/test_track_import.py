@@ -161,7 +161,10 @@ def feature(geometry, **props) -> dict:
     [
         ({"type": "FeatureCollection", "features": []}, "empty geometry"),
         (feature({"type": "LineString", "coordinates": []}, name="a"), r"feature 0: empty geometry"),
-        (feature(None, name="a"), r"feature 0: empty geometry \(null\)"),
+        (
+            feature(None, name="a"),
+            r"no LineString or MultiLineString feature selected \(1 features with null geometry skipped\)",
+        ),
         (
             feature({"type": "LineString", "coordinates": [[11.0, 50.0], [11.001, float("nan")]]}),
             r"feature 0 vertex 1: non-finite coordinate",
@@ -283,3 +286,43 @@ def test_stitching_drops_a_spur_and_bridges_a_small_gap():
     assert 0.5 < res.gaps_bridged_m[0] < 1.0
     assert res.coords.shape[0] == line.shape[0] + 1  # both ends of the bridge are kept
     np.testing.assert_array_equal(res.coords[:26], line[:26])
+
+
+def test_geojson_railway_and_tag_filters_select_features(tmp_path):
+    three = load_source(JENA, "geojson", ImportOptions(railway=("tram",), tags=(("ref", "3"),)))
+    assert [g.properties["@id"] for g in three.lines] == [
+        "rel/147373",
+        "rel/3474897",
+        "rel/3474898",
+        "rel/3474899",
+    ]
+    assert "13 line features not matching --railway/--tag skipped" in three.notes
+    assert len(load_source(JENA, "geojson", ImportOptions(railway=("tram",))).lines) == 17
+    assert_fails_cleanly(
+        tmp_path,
+        JENA,
+        "geojson",
+        r"no LineString or MultiLineString feature selected \(17 line features not matching --railway/--tag",
+        railway=("rail",),
+    )
+
+
+def test_geojson_null_and_non_line_features_are_skipped_and_counted(tmp_path):
+    line = {"type": "LineString", "coordinates": [[11.0, 50.0], [11.001, 50.0], [11.002, 50.0]]}
+    doc = {
+        "type": "FeatureCollection",
+        "features": [
+            feature(None, name="relation without geometry"),
+            feature(line, name="a"),
+            feature({"type": "Polygon", "coordinates": [[[11, 50], [11.1, 50], [11.1, 50.1], [11, 50]]]}),
+            feature(None),
+            feature({"type": "Point", "coordinates": [11.001, 50.0]}, name="Stop", railway="tram_stop"),
+            feature({"type": "Point", "coordinates": [11.002, 50.0]}, name="Plain"),
+            feature({"type": "Point", "coordinates": [11.0015, 50.0]}, name="Bakery", shop="bakery"),
+        ],
+    }
+    batch = load_source(write(tmp_path, "t.geojson", json.dumps(doc)), None, ImportOptions())
+    assert [g.name for g in batch.lines] == ["a"]
+    assert "2 features with null geometry skipped" in batch.notes
+    assert "1 features that are neither lines nor points ignored" in batch.notes
+    assert [s.name for s in batch.stops] == ["Stop", "Plain"]  # a named shop is not a stop

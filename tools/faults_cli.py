@@ -135,7 +135,7 @@ def _run_campaign(args: argparse.Namespace) -> int:
     from tools.faults.spec import load_campaign
 
     if args.jobs is not None and args.jobs < 1:
-        raise FaultConfigError("--jobs must be >= 1")
+        raise FaultConfigError(f"--jobs must be >= 1, got {args.jobs}")
     campaign = load_campaign(args.file)
     print(f"sfa faults campaign: {campaign.name}: {len(campaign.scenarios)} scenarios, mode {args.mode}, "
           f"out {args.out}", file=sys.stderr, flush=True)

@@ -83,6 +83,9 @@ class StopPoint:
     name: str
     lat_deg: float
     lon_deg: float
+    #: index (in the lines being imported) of the one line this stop belongs to, e.g. an OSM route
+    #: relation's stop member; None: every line passing within stop_tolerance_m
+    line: int | None = None
 
 
 @dataclass(frozen=True)
@@ -163,7 +166,10 @@ def _line_rows(line_id: int, d: _Derived):
     return line_row, vertex_rows, profile_row
 
 
-def _stop_rows(stops: Sequence[StopPoint], lines: dict[int, _Derived], frame: LocalFrame, tol_m: float):
+def _stop_rows(
+    stops: Sequence[StopPoint], lines: dict[int, _Derived], frame: LocalFrame, tol_m: float, first_id: int = 1
+):
+    """Stops within ``tol_m`` of each line (a stop with ``line`` set: of that line only)."""
     rows = []
     if not stops or not lines:
         return rows
@@ -176,7 +182,8 @@ def _stop_rows(stops: Sequence[StopPoint], lines: dict[int, _Derived], frame: Lo
         d = lines[line_id]
         index = SegmentIndex.for_line(line_id, d.s, d.east, d.north)
         res = index.nearest(np.atleast_1d(e), np.atleast_1d(n))
-        for k in np.flatnonzero(res.distance_m <= tol_m):
+        own = np.array([st.line is None or st.line + first_id == line_id for st in stops])
+        for k in np.flatnonzero((res.distance_m <= tol_m) & own):
             rows.append(
                 {
                     "name": stops[k].name,
@@ -357,7 +364,7 @@ def append_lines(
         network = _load_network(conn)
         network.update({k: (d.s, d.east, d.north) for k, d in derived.items()})
         junctions = _junction_rows(network, frame, config.junction_tolerance_m)
-        stop_rows = _stop_rows(stops, derived, frame, config.stop_tolerance_m)
+        stop_rows = _stop_rows(stops, derived, frame, config.stop_tolerance_m, first_id)
         db = sqlite_utils.Database(conn)
         with db.atomic():
             _write(db, derived, junctions, stop_rows)

@@ -4,7 +4,47 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
+import re
 import sys
+
+#: ``locate`` warns when the point is further than this from the nearest line [m] (default of --warn-offset-m)
+FAR_OFFSET_M = 100.0
+
+
+def _positive_m(text: str) -> float:
+    """argparse type: a positive finite number of metres (argparse names the option and the value)."""
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a number of metres") from None
+    if not (math.isfinite(value) and value > 0):
+        raise argparse.ArgumentTypeError(f"must be a positive number of metres, got {text!r}")
+    return value
+
+
+def _railway_list(text: str) -> tuple[str, ...]:
+    values = tuple(v.strip() for v in text.split(","))
+    if not all(re.fullmatch(r"[a-z_]+", v) for v in values):
+        raise argparse.ArgumentTypeError(f"expected railway=* values such as tram,rail, got {text!r}")
+    return values
+
+
+def _tag_filter(text: str) -> tuple[str, str | None]:
+    key, eq, value = text.partition("=")
+    if not key.strip() or (eq and not value):
+        raise argparse.ArgumentTypeError(f"expected KEY or KEY=VALUE, got {text!r}")
+    return key.strip(), (value if eq else None)
+
+
+def _count_from_1(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a whole number") from None
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"must be >= 1, got {text!r}")
+    return value
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -13,25 +53,51 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
     p = sub.add_parser(
         "import",
-        help="digitise a track (GeoJSON, GTFS shapes, CSV) into an SQLite track database",
+        help="digitise a track (OSM .osm.pbf/.osm, GeoJSON, GTFS shapes, CSV) into an SQLite track database",
         description="Import lines into a track database. One transaction: on any error nothing is written.",
     )
     p.add_argument(
-        "src", metavar="SRC", help="GeoJSON file, GTFS directory or .zip, or CSV file (lat,lon[,alt])"
+        "src",
+        metavar="SRC",
+        help="OSM .osm.pbf/.osm (needs the [osm] extra), GeoJSON file (an OSM export too), GTFS directory "
+        "or .zip, or CSV file (lat,lon[,alt])",
     )
     p.add_argument("-o", "--output", required=True, metavar="TRACK.db", help="track database to create")
     p.add_argument(
-        "--format", choices=("geojson", "gtfs", "csv"), help="source format (default: from the name)"
+        "--format", choices=("geojson", "gtfs", "csv", "osm"), help="source format (default: from the name)"
     )
     p.add_argument(
-        "--route", metavar="NAME", help="GTFS route (short/long name or id); GeoJSON feature ref/name/id"
+        "--route",
+        metavar="NAME",
+        help="GTFS route (short/long name or id); GeoJSON feature or OSM route relation ref/name/id",
     )
     p.add_argument("--shape", metavar="ID", help="GTFS shape_id to import")
+    p.add_argument(
+        "--railway",
+        type=_railway_list,
+        default=(),
+        metavar="TYPES",
+        help="OSM/GeoJSON: import these railway=* values only, e.g. tram or tram,light_rail (with their "
+        "route=* relations: rail -> train; default: all track)",
+    )
+    p.add_argument(
+        "--tag",
+        type=_tag_filter,
+        action="append",
+        default=[],
+        metavar="KEY[=VALUE]",
+        help="OSM/GeoJSON: import only relations/ways/features with this tag (repeatable: all must match)",
+    )
+    p.add_argument(
+        "--routes-only",
+        action="store_true",
+        help="OSM: import the route relations only, not the ways that are in no relation",
+    )
     p.add_argument("--name", metavar="LINE", help="name of the line (when the source gives exactly one)")
     p.add_argument("--attribution", metavar="TEXT", help="attribution statement (default: from the source)")
     p.add_argument(
         "--max-gap-m",
-        type=float,
+        type=_positive_m,
         default=1000.0,
         metavar="M",
         help="reject vertices further apart (default 1000)",
@@ -42,23 +108,23 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     p.add_argument("--force", action="store_true", help="replace an existing output file")
     p.add_argument(
         "--smoothing-sigma-m",
-        type=float,
+        type=_positive_m,
         default=20.0,
         metavar="M",
         help="Gaussian smoothing of heading/curvature/grade along the track, std dev (default 20)",
     )
     p.add_argument(
-        "--profile-step-m", type=float, default=2.0, metavar="M", help="profile grid step (default 2)"
+        "--profile-step-m", type=_positive_m, default=2.0, metavar="M", help="profile grid step (default 2)"
     )
     p.add_argument(
         "--junction-tolerance-m",
-        type=float,
+        type=_positive_m,
         default=1.0,
         metavar="M",
         help="vertices closer than this are one network node (default 1)",
     )
     p.add_argument(
-        "--default-line", type=int, default=1, metavar="N", help="1-based default line (default 1)"
+        "--default-line", type=_count_from_1, default=1, metavar="N", help="1-based default line (default 1)"
     )
     p.set_defaults(_track=_run_import)
 
@@ -93,6 +159,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     p.add_argument("--track", metavar="TRACK.db", help="track database (default: the bundled one)")
     p.add_argument("--line", type=int, metavar="ID", help="project onto this line only")
     p.add_argument("--json", action="store_true", help="machine-readable output")
+    p.add_argument(
+        "--warn-offset-m",
+        type=_positive_m,
+        default=FAR_OFFSET_M,
+        metavar="M",
+        help=f"warn on stderr when the point is further than this from the line (default {FAR_OFFSET_M:g})",
+    )
     p.set_defaults(_track=_run_locate)
 
 
@@ -120,6 +193,9 @@ def _run_import(args: argparse.Namespace) -> int:
         name=args.name,
         max_gap_m=args.max_gap_m,
         attribution=args.attribution,
+        railway=args.railway,
+        tags=tuple(args.tag),
+        routes_only=args.routes_only,
     )
     batch = load_source(args.src, args.format, options)
     if args.append:
@@ -147,7 +223,27 @@ def _run_import(args: argparse.Namespace) -> int:
     for note in batch.notes:
         print(f"note: {note}", file=sys.stderr)
     print(f"{out}: imported {len(ids)} line(s), ids {ids[0]}..{ids[-1]}")
+    _print_radius_report(out, ids)
     return 0
+
+
+#: ``import`` flags a line whose smoothed minimum radius is below this [m] (tram standard minimum ~ 18-25)
+TIGHT_RADIUS_M = 25.0
+
+
+def _print_radius_report(path, ids: list[int]) -> None:
+    """Per imported line: length and minimum curve radius (smoothed profile), tight curves flagged."""
+    from . import TrackDatabase
+
+    with TrackDatabase.open(path) as db:
+        rows = [i for i in db.lines() if i.line_id in set(ids)]
+    total = sum(i.length_m for i in rows)
+    print(f"{len(rows)} lines, {total / 1000:.3f} km; minimum curve radius per line (smoothed):")
+    for i in rows:
+        r = i.min_radius_m
+        radius = f"{r:9.1f} m" if r else "  straight"
+        flag = f"  tight (< {TIGHT_RADIUS_M:g} m)" if r and r < TIGHT_RADIUS_M else ""
+        print(f"{i.line_id:>4}  {i.length_m:10.1f} m  {radius}  {i.name}{flag}")
 
 
 #: branch points closer than this are reported as one junction area by ``info`` [m]
@@ -252,6 +348,9 @@ def _run_export(args: argparse.Namespace) -> int:
 
 
 def _run_locate(args: argparse.Namespace) -> int:
+    from .geodesy import WGS84, check_latlon
+
+    check_latlon(args.lat, args.lon)  # before opening anything: a clear error naming the value
     with _open(args.track) as db:
         if args.line is not None:
             line = db.line(args.line)
@@ -272,6 +371,16 @@ def _run_locate(args: argparse.Namespace) -> int:
             "heading_deg": float(line.heading_at(s)) * 57.29577951308232 % 360.0,
             "curvature_per_m": float(line.curvature_at(s)),
         }
+    # the geodesic distance: the local frame's offset is distorted far from the network
+    distance_m = float(WGS84.inv(args.lon, args.lat, float(lon), float(lat))[2])
+    if distance_m > args.warn_offset_m:
+        where = f"line {line_id} ({result['line_name']})"
+        where = where if args.line is not None else f"the nearest line, {where}"
+        print(
+            f"warning: ({args.lat:g}, {args.lon:g}) is {_distance_text(distance_m)} from {where}"
+            f" (more than --warn-offset-m {args.warn_offset_m:g} m): not on this track",
+            file=sys.stderr,
+        )
     if args.json:
         print(json.dumps(result, indent=2, ensure_ascii=False))
     else:
@@ -282,3 +391,7 @@ def _run_locate(args: argparse.Namespace) -> int:
             f" heading {result['heading_deg']:.1f} deg, curvature {result['curvature_per_m']:.5f} 1/m)"
         )
     return 0
+
+
+def _distance_text(distance_m: float) -> str:
+    return f"{distance_m / 1000:,.1f} km" if distance_m >= 10_000 else f"{distance_m:,.1f} m"

@@ -11,7 +11,7 @@ from pathlib import Path
 import numpy as np
 
 from .errors import QueryError, SchemaError
-from .geodesy import LocalFrame
+from .geodesy import LocalFrame, check_latlon
 from .line import TrackLine
 from .schema import read_meta
 from .segments import SegmentIndex
@@ -214,8 +214,7 @@ class TrackDatabase:
         lon = np.atleast_1d(np.asarray(lon_deg, dtype=np.float64)).ravel()
         if lat.shape != lon.shape:
             raise QueryError("latitude and longitude arrays differ in length")
-        if not (np.all(np.isfinite(lat)) and np.all(np.isfinite(lon))):
-            raise QueryError("latitude and longitude must be finite")
+        check_latlon(lat, lon)
         e, n = self.frame.to_local(lat, lon)
         res = self._network_index.nearest(e, n)
         return ProjectionArrays(res.line_id, res.s_m, res.offset_m, res.distance_m)

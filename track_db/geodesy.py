@@ -16,13 +16,32 @@ from dataclasses import dataclass, field
 import numpy as np
 from pyproj import CRS, Geod, Transformer
 
-__all__ = ["WGS84", "LocalFrame", "geodesic_arc_length_m", "segment_lengths_m", "tmerc_proj_string"]
+__all__ = [
+    "WGS84",
+    "LocalFrame",
+    "check_latlon",
+    "geodesic_arc_length_m",
+    "segment_lengths_m",
+    "tmerc_proj_string",
+]
 
 #: the WGS84 ellipsoid used for every arc length in the project
 WGS84 = Geod(ellps="WGS84")
 
 #: geographic WGS84 (EPSG:4326) used with ``always_xy=True``: (lon, lat) order in every transform
 _GEOGRAPHIC = CRS.from_epsg(4326)
+
+
+def check_latlon(lat_deg, lon_deg) -> None:
+    """Raise QueryError naming the first latitude outside -90..90 deg or longitude outside -180..180 deg
+    (or non-finite value); a projection of such a point would be meaningless, not an error later on."""
+    from .errors import QueryError
+
+    for what, values, limit in (("latitude", lat_deg, 90.0), ("longitude", lon_deg, 180.0)):
+        v = np.atleast_1d(np.asarray(values, dtype=np.float64)).ravel()
+        bad = ~(np.isfinite(v) & (np.abs(v) <= limit))
+        if bad.any():
+            raise QueryError(f"{what} {float(v[bad][0]):g} deg is outside -{limit:g}..{limit:g} deg")
 
 
 def segment_lengths_m(lat_deg: np.ndarray, lon_deg: np.ndarray) -> np.ndarray:

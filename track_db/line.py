@@ -19,7 +19,7 @@ from functools import cached_property
 import numpy as np
 
 from .errors import QueryError
-from .geodesy import LocalFrame
+from .geodesy import LocalFrame, check_latlon
 from .segments import SegmentIndex
 from .smoothing import hermite_derivative, hermite_value, linear_value
 
@@ -244,8 +244,7 @@ class TrackLine:
         """(s_m, offset_m) of the nearest point of the line to (lat_deg, lon_deg)."""
         lat = np.asarray(lat_deg, dtype=np.float64)
         lon = np.asarray(lon_deg, dtype=np.float64)
-        if not (np.all(np.isfinite(lat)) and np.all(np.isfinite(lon))):
-            raise QueryError("latitude and longitude must be finite")
+        check_latlon(lat, lon)
         e, n = self._frame.to_local(lat, lon)
         s, off = self.project(e, n)
         return _shape_like(lat_deg, np.asarray(s)), _shape_like(lat_deg, np.asarray(off))

@@ -15,7 +15,9 @@ from ..validate import CUSP_DEG, max_turn_deg
 
 __all__ = ["FORMATS", "ImportBatch", "ImportOptions", "guess_format", "load_source"]
 
-FORMATS = ("geojson", "gtfs", "csv")
+FORMATS = ("geojson", "gtfs", "csv", "osm")
+#: file name endings read as OpenStreetMap data (pyosmium, the optional extra [osm])
+OSM_SUFFIXES = (".osm.pbf", ".pbf", ".osm", ".osm.gz", ".osm.bz2")
 
 
 @dataclass(frozen=True)
@@ -28,6 +30,9 @@ class ImportOptions:
     max_gap_m: float = 1000.0  #: longest accepted distance between consecutive vertices [m]
     attribution: str | None = None  #: attribution statement; default: what the source says
     snap_m: float = 0.5  #: MultiLineString parts whose ends are this close are joined [m]
+    railway: tuple[str, ...] = ()  #: OSM/GeoJSON: railway=* values (and their route=* relations); (): all
+    tags: tuple[tuple[str, str | None], ...] = ()  #: OSM/GeoJSON: every (key, value or None: any) must match
+    routes_only: bool = False  #: OSM: import route relations only, not the ways in no relation
 
 
 @dataclass(frozen=True)
@@ -40,6 +45,8 @@ class ImportBatch:
 def guess_format(src: Path) -> str:
     if src.is_dir() or src.suffix.lower() == ".zip":
         return "gtfs"
+    if src.name.lower().endswith(OSM_SUFFIXES):
+        return "osm"
     suffix = src.suffix.lower()
     if suffix in (".geojson", ".json"):
         return "geojson"
@@ -62,6 +69,10 @@ def load_source(src: str | Path, fmt: str | None, options: ImportOptions) -> Imp
         from .gtfs import load_gtfs
 
         batch = load_gtfs(src, options)
+    elif fmt == "osm":
+        from .osm import osm_to_batch, read_osm_file
+
+        batch = osm_to_batch(read_osm_file(src), src, options)
     elif fmt == "csv":
         from .csvfile import load_csv
 

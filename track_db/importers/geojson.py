@@ -1,6 +1,12 @@
 """GeoJSON importer: LineString features (one line each) and MultiLineString features whose parts are
 unordered and unoriented (one line each, stitched: see track_db.stitch). Point features with a name are
-stops. Positions are [lon, lat] or [lon, lat, alt] (RFC 7946)."""
+stops when tagged as one (OSM stop tags) or carrying no other property. Features with a null geometry
+and features that are neither lines nor points are skipped and counted. Positions are [lon, lat] or
+[lon, lat, alt] (RFC 7946).
+
+An OpenStreetMap export with ways (``way/N`` features) or memberships (``@relations``), as
+overpass-turbo writes it, is read as OSM data instead: route relations stitched from their member ways,
+stops from their stop members (track_db.importers.osm)."""
 
 from __future__ import annotations
 
@@ -15,6 +21,7 @@ from ..build import LineGeometry, StopPoint
 from ..errors import ImportFailed
 from ..stitch import stitch_parts
 from . import ImportBatch, ImportOptions
+from .osm import ROUTES_OF, STOP_TAGS, from_geojson_features, is_osm_geojson, osm_to_batch
 
 __all__ = ["load_geojson"]
 
@@ -66,6 +73,27 @@ def _line_name(props: dict, k: int) -> str:
     return f"feature {k}"
 
 
+#: properties that say nothing about what a point is
+_NEUTRAL = {"name", "id", "description", "ref"}
+
+
+def _is_stop(props: dict) -> bool:
+    if not props.get("name"):
+        return False
+    if any(props.get(k) in v for k, v in STOP_TAGS.items()) or props.get("public_transport") == "platform":
+        return True
+    return all(str(k).startswith("@") or k in _NEUTRAL for k in props)
+
+
+def _selected(props: dict, options: ImportOptions) -> bool:
+    """--railway (railway=* of a way, route=* of a relation) and --tag filters."""
+    if options.railway:
+        routes = {r for rw in options.railway for r in ROUTES_OF.get(rw, (rw,))}
+        if props.get("railway") not in options.railway and props.get("route") not in routes:
+            return False
+    return all(k in props and (v is None or str(props[k]) == v) for k, v in options.tags)
+
+
 def _matches(props: dict, feature: dict, route: str) -> bool:
     keys = (props.get("ref"), props.get("name"), props.get("@id"), props.get("id"), feature.get("id"))
     return any(k is not None and str(k) == route for k in keys)
@@ -79,24 +107,31 @@ def load_geojson(src: Path, options: ImportOptions) -> ImportBatch:
     except json.JSONDecodeError as exc:
         raise ImportFailed(f"{src}: not valid JSON: {exc}") from None
     feats = _features(doc, src)
+    if is_osm_geojson(feats):
+        return osm_to_batch(from_geojson_features(feats, _positions), src, options)
     attribution = options.attribution or str(doc.get("copyright", ""))
     notes: list[str] = []
     stops: list[StopPoint] = []
     stop_pos: dict[str, list[tuple[float, float]]] = {}
     candidates: list[tuple[int, dict, dict]] = []
     ignored = 0
+    nulls = 0
+    unselected = 0
     for k, feat in enumerate(feats):
         where = f"feature {k}"
         if not isinstance(feat, dict) or feat.get("type") != "Feature":
             raise ImportFailed(f"{where}: not a GeoJSON Feature")
         props = feat.get("properties") or {}
+        if not isinstance(props, dict):
+            raise ImportFailed(f"{where}: properties must be an object, got {props!r}")
         geom = feat.get("geometry")
         if geom is None:
-            raise ImportFailed(f"{where}: empty geometry (null)")
+            nulls += 1  # e.g. a relation an export could not give a geometry
+            continue
         gtype = geom.get("type") if isinstance(geom, dict) else None
         if gtype == "Point":
             name = props.get("name")
-            if name:
+            if _is_stop(props):
                 pos = _positions([geom.get("coordinates")], where)[0]
                 stops.append(StopPoint(str(name), float(pos[1]), float(pos[0])))
                 stop_pos.setdefault(_norm(str(name)), []).append((float(pos[1]), float(pos[0])))
@@ -104,9 +139,16 @@ def load_geojson(src: Path, options: ImportOptions) -> ImportBatch:
         if gtype not in ("LineString", "MultiLineString"):
             ignored += 1
             continue
+        if not _selected(props, options):
+            unselected += 1
+            continue
         candidates.append((k, feat, props))
     if ignored:
         notes.append(f"{ignored} features that are neither lines nor points ignored")
+    if nulls:
+        notes.append(f"{nulls} features with null geometry skipped")
+    if unselected:
+        notes.append(f"{unselected} line features not matching --railway/--tag skipped")
     if options.route is not None:
         chosen = [c for c in candidates if _matches(c[2], c[1], options.route)]
         if not chosen:
@@ -114,7 +156,8 @@ def load_geojson(src: Path, options: ImportOptions) -> ImportBatch:
             raise ImportFailed(f"{src}: unknown route {options.route!r} (features have: {', '.join(known)})")
         candidates = chosen
     if not candidates:
-        raise ImportFailed(f"{src}: no LineString or MultiLineString feature: empty geometry")
+        why = ", ".join(notes) or "empty geometry"
+        raise ImportFailed(f"{src}: no LineString or MultiLineString feature selected ({why})")
     lines: list[LineGeometry] = []
     for k, feat, props in candidates:
         fid = props.get("@id") or feat.get("id")
