@@ -259,7 +259,15 @@ def replay_capture(
             result = replay_datagrams(gen, track, options, progress=lambda k: bar.advance(task, k))
     else:
         result = replay_datagrams(gen, track, options)
-    result.capture = {"frames": stats.frames, "datagrams": stats.datagrams, "skipped": dict(stats.skipped)}
+    warning = stats.truncation_warning(path)
+    result.capture = {
+        "frames": stats.frames,
+        "datagrams": stats.datagrams,
+        "skipped": dict(stats.skipped),
+        "truncated_bytes": stats.truncated_bytes,
+        "truncated_records": stats.truncated_records,
+        "warnings": [] if warning is None else [warning],
+    }
     if stats.datagrams == 0:
         raise ToolError(
             f"{path}: no UDP datagram to port {options.port} in the capture "

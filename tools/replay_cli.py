@@ -96,6 +96,8 @@ def run(args: argparse.Namespace) -> int:
             args.capture, track, options, show_progress=not args.quiet and sys.stderr.isatty()
         )
     wall = time.perf_counter() - t0
+    for warning in result.capture.get("warnings", ()):
+        print(f"sfa replay: warning: {warning}", file=sys.stderr)
     metrics = replay_metrics(result, truth)
     metrics["replay_wall_s"] = wall
     metrics["replay_path"] = path_used
