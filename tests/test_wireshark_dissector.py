@@ -1,0 +1,247 @@
+"""tools/wireshark/sfa.lua: tshark decodes the shipped sample capture field by field as listener.codec does.
+
+The tshark tests are skipped, with the reason, where tshark is not installed (``apt-get install tshark``).
+"""
+
+from __future__ import annotations
+
+import json
+import shutil
+import struct
+import subprocess
+from dataclasses import fields
+from pathlib import Path
+
+import dpkt
+import pytest
+
+from listener.auth import MAGIC, AuthConfig, AuthState, input_seq, output_seq, unwrap
+from listener.codec import (
+    DecodeError,
+    OutputExtended,
+    SensorType,
+    decode_ack,
+    decode_input,
+    decode_output_any,
+    input_layout,
+)
+from listener.defaults import DEFAULT_LISTENER_PORT, DEFAULT_OBCU_PORT
+from tools.wireshark.make_sample import SAMPLE_KEY, frame, sample_records, write_sample
+
+ROOT = Path(__file__).resolve().parents[1]
+LUA = ROOT / "tools" / "wireshark" / "sfa.lua"
+SAMPLE = ROOT / "tools" / "wireshark" / "sample.pcap"
+TSHARK = shutil.which("tshark")
+needs_tshark = pytest.mark.skipif(
+    TSHARK is None, reason="tshark is not installed (apt-get install tshark): the dissector is not exercised"
+)
+MODULE_PORTS = range(47000, 47004)
+UDP_PAYLOAD_OFFSET = 14 + 20 + 8  # Ethernet, IPv4 without options, UDP
+PREFIX = {
+    SensorType.IMU: "imu",
+    SensorType.ODOMETER: "odometer",
+    SensorType.GPS: "gps",
+    SensorType.GROUND_TRUTH: "ground_truth",
+    SensorType.STROBE: "strobe",
+    SensorType.STOP: "stop",
+}
+OUTPUT_LAYOUT = (  # name, offset, struct format
+    ("seq", 0, "<H"), ("epoch", 2, "<d"), ("arc_length", 10, "<d"), ("speed", 18, "<d"),
+    ("interval_low", 26, "<d"), ("interval_high", 34, "<d"), ("status", 42, "<B"), ("line_id", 43, "<i"),
+)  # fmt: skip
+
+
+def _frames(path: Path) -> list[tuple[int, int, bytes]]:
+    out = []
+    with open(path, "rb") as fh:
+        for _, buf in dpkt.pcap.Reader(fh):
+            udp = dpkt.ethernet.Ethernet(buf).data.data
+            out.append((udp.sport, udp.dport, bytes(udp.data)))
+    return out
+
+
+def _auth_split(data: bytes, direction: str) -> tuple[int, int, bytes, bytes]:
+    """(key_id, epoch, payload, tag) of a wrapped datagram, checked with listener.auth.unwrap."""
+    if direction == "INPUT":
+        inner = 5 + 4 * data[9] + 8 * data[10]
+    else:
+        inner = {"OUTPUT": 18, "ACK": 2}[direction]
+    tag_bytes = len(data) - 6 - inner
+    state = AuthState(AuthConfig(tag_bytes=tag_bytes))
+    seq_of = input_seq if direction == "INPUT" else output_seq
+    payload = unwrap(data, {data[1]: SAMPLE_KEY}, state, seq_of=seq_of)
+    return data[1], struct.unpack_from("<I", data, 2)[0], payload, data[-tag_bytes:]
+
+
+def _direction(sport: int, dport: int) -> str:
+    """The dissector's rule: by the default ports, else (any port) INPUT by content."""
+    if dport == DEFAULT_OBCU_PORT:
+        return "OUTPUT"
+    if sport == DEFAULT_OBCU_PORT:
+        return "ACK"
+    return "INPUT"
+
+
+def expected_fields(sport: int, dport: int, data: bytes) -> dict:
+    """What the dissector must show, from the Python codec: {field: (value, payload offset, format)}.
+
+    Also ``message`` (INPUT / OUTPUT / OUTPUT_EXTENDED / ACK), ``malformed`` (the codec's DecodeError
+    reason, or None), and for authenticated datagrams the envelope fields."""
+    direction = _direction(sport, dport)
+    out: dict = {"fields": {}, "malformed": None, "auth": None}
+    base = 0
+    if data[0] == MAGIC and not (direction == "OUTPUT" and len(data) in (18, 47)) and not (
+        direction == "ACK" and len(data) == 2
+    ):
+        key_id, epoch, payload, tag = _auth_split(data, direction)
+        out["auth"] = {"sfa.auth.key_id": key_id, "sfa.auth.epoch": epoch, "sfa.auth.tag": tag,
+                       "sfa.auth.payload_length": len(payload)}  # fmt: skip
+        data, base = payload, 6
+    f = out["fields"]
+    if direction == "INPUT":
+        out["message"] = "INPUT"
+        try:
+            msg = decode_input(data)
+        except DecodeError as exc:
+            out["malformed"] = str(exc.reason)
+            return out
+        st = SensorType(data[0])
+        f["sfa.input.sensor_type"] = (int(st), base + 0, "<B")
+        f["sfa.input.seq"] = (msg.seq, base + 1, "<H")
+        f["sfa.input.n_int"] = (data[3], base + 3, "<B")
+        f["sfa.input.n_double"] = (data[4], base + 4, "<B")
+        names = input_layout(st, data[3], data[4])
+        for i, name in enumerate(names):
+            off = 5 + 4 * i if i < data[3] else 5 + 4 * data[3] + 8 * (i - data[3])
+            fmt = "<i" if i < data[3] else "<d"
+            f[f"sfa.{PREFIX[st]}.{name}"] = (getattr(msg, name), base + off, fmt)
+        assert {fl.name for fl in fields(msg) if getattr(msg, fl.name) is not None} == {"seq", *names}
+    elif direction == "OUTPUT":
+        try:
+            msg = decode_output_any(data)
+        except DecodeError as exc:
+            out["message"] = "OUTPUT"
+            out["malformed"] = str(exc.reason)
+            return out
+        out["message"] = "OUTPUT_EXTENDED" if isinstance(msg, OutputExtended) else "OUTPUT"
+        for name, off, fmt in OUTPUT_LAYOUT:
+            if hasattr(msg, name):
+                value = getattr(msg, name)
+                f[f"sfa.output.{name}"] = (-1 if value is None else value, base + off, fmt)
+    else:
+        out["message"] = "ACK"
+        f["sfa.ack.seq"] = (decode_ack(data), base, "<H")
+    return out
+
+
+def _flatten(layer: dict, acc: dict) -> dict:
+    for key, value in layer.items():
+        if isinstance(value, dict):
+            _flatten(value, acc)
+        else:
+            assert key not in acc, f"{key} twice in one frame"
+            acc[key] = value
+    return acc
+
+
+def _tshark_json(path: Path, *options: str) -> list[dict]:
+    res = subprocess.run(
+        [TSHARK, "-n", "-X", f"lua_script:{LUA}", "-r", str(path), "-T", "json", "-x", *options],
+        capture_output=True, text=True, timeout=120,
+    )  # fmt: skip
+    assert res.returncode == 0, res.stderr
+    assert "Lua" not in res.stderr and "rror" not in res.stderr, res.stderr
+    return [pkt["_source"]["layers"] for pkt in json.loads(res.stdout)]
+
+
+def test_sample_holds_every_message_kind(tmp_path):
+    """The builder runs (seeded) and the shipped file has what the docs say (no tshark needed)."""
+    fresh = tmp_path / "sample.pcap"
+    n = write_sample(fresh)
+    assert n == len(sample_records()) == len(_frames(fresh))
+    for path in (fresh, SAMPLE):
+        kinds: dict[str, int] = {}
+        for sport, dport, data in _frames(path):
+            exp = expected_fields(sport, dport, data)
+            kind = exp["message"]
+            if exp["message"] == "INPUT" and exp["malformed"] is None:
+                kind = PREFIX[SensorType(exp["fields"]["sfa.input.sensor_type"][0])]
+            kind = ("auth " if exp["auth"] else "") + kind + (" malformed" if exp["malformed"] else "")
+            kinds[kind] = kinds.get(kind, 0) + 1
+        assert set(kinds) == {
+            "imu", "odometer", "gps", "ground_truth", "strobe", "stop", "OUTPUT", "OUTPUT_EXTENDED", "ACK",
+            "auth strobe", "auth imu", "auth OUTPUT", "auth ACK", "INPUT malformed", "OUTPUT malformed",
+        }, (path, kinds)  # fmt: skip
+        assert kinds["INPUT malformed"] == 2
+
+
+@needs_tshark
+def test_tshark_decodes_every_field_of_the_sample_as_the_codec():
+    frames = _frames(SAMPLE)
+    layers = _tshark_json(SAMPLE)
+    assert len(layers) == len(frames)
+    checked = 0
+    for i, ((sport, dport, data), layer) in enumerate(zip(frames, layers, strict=True), start=1):
+        assert "sfa" in layer, (i, list(layer))
+        assert not {"hcrt", "cigi", "data"} & set(layer), (i, list(layer))  # the misreadings are gone
+        got = _flatten(layer["sfa"], {})
+        exp = expected_fields(sport, dport, data)
+        assert got["sfa.message"] == exp["message"], i
+        if exp["malformed"]:
+            assert "sfa.malformed" in got, (i, got)
+            assert got["_ws.expert.message"].startswith(exp["malformed"] + ": "), (i, got)  # the same reason
+            continue
+        assert "sfa.malformed" not in got and "sfa.non_finite" not in got, (i, got)
+        if exp["auth"]:
+            a = exp["auth"]
+            assert got["sfa.auth.magic"] == "0xa5"
+            assert int(got["sfa.auth.key_id"]) == a["sfa.auth.key_id"]
+            assert int(got["sfa.auth.epoch"]) == a["sfa.auth.epoch"]
+            assert int(got["sfa.auth.payload_length"]) == a["sfa.auth.payload_length"]
+            assert bytes.fromhex(got["sfa.auth.tag"].replace(":", "")) == a["sfa.auth.tag"]
+        sfa_fields = {k for k in got if k.startswith("sfa.") and not k.endswith("_raw")}
+        envelope = {"sfa.message", *(("sfa.auth.magic", *exp["auth"]) if exp["auth"] else ())}
+        assert sfa_fields - envelope == set(exp["fields"]), i  # no field missing, none extra
+        for name, (value, off, fmt) in exp["fields"].items():
+            raw_hex, raw_off, raw_len = got[f"{name}_raw"][:3]
+            assert (raw_off, raw_len) == (UDP_PAYLOAD_OFFSET + off, struct.calcsize(fmt)), (i, name)
+            assert struct.unpack(fmt, bytes.fromhex(raw_hex))[0] == value, (i, name)  # bit for bit
+            shown = got[name]
+            if fmt == "<d":
+                assert float(shown) == pytest.approx(value, rel=1e-14, abs=1e-300), (i, name, shown)
+            else:
+                assert int(shown) == value, (i, name, shown)
+            checked += 1
+    assert checked > 2000  # every field of every frame, not a few
+
+
+@needs_tshark
+def test_ports_are_preferences_and_other_ports_fall_back_to_the_heuristic(tmp_path):
+    from listener.codec import OutputMessage, Strobe, encode_input, encode_output
+
+    path = tmp_path / "ports.pcap"
+    recs = [
+        (1.0, 41000, 49500, encode_input(Strobe(3, 1.7e9))),  # any port: found by content
+        (1.1, 41001, 49501, encode_output(OutputMessage(4, 1.7e9, 12.5))),  # 18 bytes: only by port
+    ]
+    with open(path, "wb") as fh:
+        w = dpkt.pcap.Writer(fh, linktype=dpkt.pcap.DLT_EN10MB)
+        for k, (t, sp, dp, data) in enumerate(recs):
+            w.writepkt(frame(sp, dp, data, k), ts=t)
+    plain = _tshark_json(path)
+    assert _flatten(plain[0]["sfa"], {})["sfa.strobe.timestamp"] == "1700000000"
+    assert "sfa" not in plain[1]
+    configured = _tshark_json(path, "-o", "sfa.input_port:49500", "-o", "sfa.obcu_port:49501")
+    got = _flatten(configured[1]["sfa"], {})
+    shown = (got["sfa.message"], got["sfa.output.seq"], got["sfa.output.arc_length"])
+    assert shown == ("OUTPUT", "4", "12.5")
+
+
+def test_default_ports_of_the_project_are_those_of_the_dissector():
+    text = LUA.read_text()
+    assert f'Pref.uint("Listener input port", {DEFAULT_LISTENER_PORT},' in text
+    assert f'Pref.uint("OBCU port", {DEFAULT_OBCU_PORT},' in text
+    from interface_modules.scenario import _DEFAULT_PORTS
+
+    assert sorted(_DEFAULT_PORTS.values()) == list(MODULE_PORTS)
+    assert '"47000-47003"' in text
