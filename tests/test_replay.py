@@ -128,7 +128,13 @@ def test_cli_writes_every_file_and_byte_identical_estimates(world, tmp_path):
     labels = [r["label"] for r in m["baselines"]]
     assert labels[0] == "sfa" and len(labels) == 4
     html = (outs[0] / "report.html").read_text()
-    assert html.count("data:image/png;base64,") == 4
+    assert html.count("data:image/png;base64,") == 5  # error, status, speed, innovations, map
+    assert "Consistency (NEES)" in html and "OBCU link" not in html  # no OBCU in a replay
+    pq = pytest.importorskip("pyarrow.parquet")
+    table = pq.read_table(outs[0] / "estimates.parquet")
+    assert table.column_names == header + ["reasons"]
+    rows = a.read_text().splitlines()[1:]
+    assert table.column("epoch").to_pylist() == [float(r.split(",")[0]) for r in rows]
     geo = json.loads((outs[0] / "estimates.geojson").read_text())
     assert geo["type"] == "FeatureCollection" and geo["features"][0]["geometry"]["type"] == "LineString"
 
