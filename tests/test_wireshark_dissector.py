@@ -6,6 +6,7 @@ The tshark tests are skipped, with the reason, where tshark is not installed (``
 from __future__ import annotations
 
 import json
+import re
 import shutil
 import struct
 import subprocess
@@ -120,7 +121,7 @@ def expected_fields(sport: int, dport: int, data: bytes) -> dict:
         try:
             msg = decode_output_any(data)
         except DecodeError as exc:
-            out["message"] = "OUTPUT"
+            out["message"] = "OUTPUT_EXTENDED" if len(data) == 47 else "OUTPUT"
             out["malformed"] = str(exc.reason)
             return out
         out["message"] = "OUTPUT_EXTENDED" if isinstance(msg, OutputExtended) else "OUTPUT"
@@ -132,6 +133,24 @@ def expected_fields(sport: int, dport: int, data: bytes) -> dict:
         out["message"] = "ACK"
         f["sfa.ack.seq"] = (decode_ack(data), base, "<H")
     return out
+
+
+def _codec_error(sport: int, dport: int, data: bytes) -> str:
+    """The codec's one-line rejection of a plain datagram, as ``str(DecodeError)``."""
+    decode = {"INPUT": decode_input, "OUTPUT": decode_output_any, "ACK": decode_ack}[_direction(sport, dport)]
+    try:
+        decode(data)
+    except DecodeError as exc:
+        return str(exc)
+    raise AssertionError("the codec accepts it")
+
+
+def _same_words(shown: str, codec: str) -> bool:
+    """Equal messages, a number written ``95`` by Lua and ``95.0`` by Python's repr counting as equal."""
+    number = r"-?[0-9]+(?:\.[0-9]+)?(?:e[-+]?[0-9]+)?"
+    if re.sub(number, "#", shown) != re.sub(number, "#", codec):
+        return False
+    return [float(x) for x in re.findall(number, shown)] == [float(x) for x in re.findall(number, codec)]
 
 
 def _flatten(layer: dict, acc: dict) -> dict:
@@ -171,8 +190,11 @@ def test_sample_holds_every_message_kind(tmp_path):
         assert set(kinds) == {
             "imu", "odometer", "gps", "ground_truth", "strobe", "stop", "OUTPUT", "OUTPUT_EXTENDED", "ACK",
             "auth strobe", "auth imu", "auth OUTPUT", "auth ACK", "INPUT malformed", "OUTPUT malformed",
+            "OUTPUT_EXTENDED malformed",
         }, (path, kinds)  # fmt: skip
-        assert kinds["INPUT malformed"] == 2
+        assert (kinds["INPUT malformed"], kinds["OUTPUT malformed"]) == (5, 1)
+        reasons = {expected_fields(*f)["malformed"] for f in _frames(path)} - {None}
+        assert reasons == {"length", "type", "range", "non_finite"}
 
 
 @needs_tshark
@@ -188,8 +210,10 @@ def test_tshark_decodes_every_field_of_the_sample_as_the_codec():
         exp = expected_fields(sport, dport, data)
         assert got["sfa.message"] == exp["message"], i
         if exp["malformed"]:
-            assert "sfa.malformed" in got, (i, got)
+            expert = "sfa.non_finite" if exp["malformed"] == "non_finite" else "sfa.malformed"
+            assert expert in got, (i, got)
             assert got["_ws.expert.message"].startswith(exp["malformed"] + ": "), (i, got)  # the same reason
+            assert _same_words(got["_ws.expert.message"], _codec_error(sport, dport, data)), i  # same words
             continue
         assert "sfa.malformed" not in got and "sfa.non_finite" not in got, (i, got)
         if exp["auth"]:
@@ -245,3 +269,14 @@ def test_default_ports_of_the_project_are_those_of_the_dissector():
 
     assert sorted(_DEFAULT_PORTS.values()) == list(MODULE_PORTS)
     assert '"47000-47003"' in text
+
+
+def test_the_dissector_ranges_are_the_codec_ranges():
+    from listener.codec import FIELD_RANGES
+
+    block = LUA.read_text().split("local RANGES = {", 1)[1].split("\n}\n", 1)[0]
+    got = {
+        m[1]: (float(m[2]), float(m[3]), m[4], bool(m[5]))
+        for m in re.finditer(r"(\w+) = \{ ([-0-9.]+), ([-0-9.]+), \"([^\"]*)\"(, true)? \}", block)
+    }
+    assert got == {k: (r.lo, r.hi, r.unit, r.lo_open) for k, r in FIELD_RANGES.items()}

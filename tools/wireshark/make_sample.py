@@ -13,16 +13,19 @@ Contents, Ethernet/IPv4/UDP on 127.0.0.1 with the default ports (listener/defaul
 * an ACK per second from 48001 back to port 50000;
 * the authenticated envelope (listener/auth.py) around an INPUT (16- and 32-byte tags), an OUTPUT and
   an ACK, under the throwaway key :data:`SAMPLE_KEY` (not a secret: it only makes the tags real);
-* a STOP to the non-default port 49000 (the heuristic dissector finds it), and three malformed
-  datagrams the codec rejects (a length that disagrees with the header, an unknown SENSOR_TYPE, a
-  20-byte OUTPUT) so the dissector's expert info can be seen.
+* a STOP to the non-default port 49000 (the heuristic dissector finds it), and seven datagrams the
+  codec rejects, so the dissector's expert info can be seen: a length that disagrees with the header,
+  an unknown SENSOR_TYPE, a 20-byte OUTPUT; and, well-formed but out of range, a latitude of 95 deg,
+  a fix quality of 9, a NaN acceleration, an extended OUTPUT whose interval misses its arc length.
 
 Deterministic: the simulator is seeded and nothing reads a clock.
 """
 
 from __future__ import annotations
 
+import math
 import socket
+import struct
 import sys
 from pathlib import Path
 
@@ -57,6 +60,7 @@ def sample_records(duration_s: float = 2.0) -> list[tuple[float, int, int, bytes
     from interface_modules.offline import generate
     from listener.auth import wrap
     from listener.codec import (
+        GpsFix,
         ImuSample,
         OutputExtended,
         OutputMessage,
@@ -101,6 +105,19 @@ def sample_records(duration_s: float = 2.0) -> list[tuple[float, int, int, bytes
         (40000, OTHER_PORT, encode_input(Stop(5))),
         (47001, DEFAULT_LISTENER_PORT, imu[:-8]),  # header says 7 doubles, 6 follow
         (47000, DEFAULT_LISTENER_PORT, b"\x07\x01\x00\x00\x00"),  # SENSOR_TYPE 7 does not exist
+        # well-formed but rejected by the codec's value checks (encoded without them, as the fault tools do)
+        (47003, DEFAULT_LISTENER_PORT, encode_input(GpsFix(9, 95.0, 11.6, 160.0, 1, 8, 2.5), validate=False)),
+        (47003, DEFAULT_LISTENER_PORT, encode_input(GpsFix(10, 50.9, 11.6, 160.0, 9, 8), validate=False)),
+        (
+            47001,
+            DEFAULT_LISTENER_PORT,
+            encode_input(ImuSample(202, math.nan, 0, -9.81, 0, 0, 0), validate=False),
+        ),
+        (
+            LISTENER_OUT_PORT,
+            DEFAULT_OBCU_PORT,
+            struct.pack("<HdddddBi", 302, 1.7e9, 50.0, 1.0, 51.0, 52.0, 1, 2),
+        ),
         (LISTENER_OUT_PORT, DEFAULT_OBCU_PORT, encode_output(OutputMessage(301, 1.7e9, 43.0)) + b"\x00\x00"),
     ]
     recs += [(t_end + 0.01 * (i + 1), sp, dp, data) for i, (sp, dp, data) in enumerate(extra)]

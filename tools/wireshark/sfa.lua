@@ -86,6 +86,21 @@ for _, lay in pairs(PAYLOAD) do
   end
 end
 
+-- the codec's physical ranges (listener/codec.py FIELD_RANGES, listener/limits.py; docs/protocol.md):
+-- {lo, hi, unit, lo_open}; tests/test_wireshark_dissector.py checks this table against the codec's
+local RANGES = {
+  ax = { -156.9064, 156.9064, "m/s^2" }, ay = { -156.9064, 156.9064, "m/s^2" },
+  az = { -156.9064, 156.9064, "m/s^2" },
+  gx = { -35.0, 35.0, "rad/s" }, gy = { -35.0, 35.0, "rad/s" }, gz = { -35.0, 35.0, "rad/s" },
+  speed = { -150.0, 150.0, "m/s" }, sigma = { 0.0, 50.0, "m/s", true },
+  lat = { -90.0, 90.0, "deg" }, lon = { -180.0, 180.0, "deg" }, alt = { -500.0, 9000.0, "m" },
+  sigma_h = { 0.0, 100000.0, "m", true },
+  fix_quality = { 0, 8, "" }, num_sv = { 0, 255, "" },
+  vx = { -150.0, 150.0, "m/s" }, vy = { -150.0, 150.0, "m/s" }, vz = { -150.0, 150.0, "m/s" },
+  arc_length = { -1000.0, 100000000.0, "m" }, line_id = { 0, 2147483647, "" },
+  epoch = { 0.0, 10000000000.0, "s" }, timestamp = { 0.0, 10000000000.0, "s" },
+}
+
 field(fl, "out_seq", ProtoField.uint16("sfa.output.seq", "SEQ", base.DEC))
 field(fl, "out_epoch", ProtoField.double("sfa.output.epoch", "EPOCH, time of the estimate [s]"))
 field(fl, "out_arc", ProtoField.double("sfa.output.arc_length", "FU_ARC_LEN, arc length [m]"))
@@ -119,6 +134,26 @@ end
 local function u16(r) if big() then return r:uint() end return r:le_uint() end
 local function f64(r) if big() then return r:float() end return r:le_float() end
 local function finite(x) return x == x and x ~= math.huge and x ~= -math.huge end
+local function repr(x)  -- Python's spelling of the non-finite values (the codec's messages)
+  if x ~= x then return "nan" elseif x == math.huge then return "inf" elseif x == -math.huge then return "-inf" end
+  return string.format("%.17g", x)
+end
+local function i32(r) if big() then return r:int() end return r:le_int() end
+
+-- the codec's per-field check of one payload value: nil, or "non_finite: ..." / "range: ..."
+local function value_problem(where, name, x, is_int)
+  if not is_int and not finite(x) then
+    return string.format("non_finite: %s: %s=%s is not finite", where, name, repr(x))
+  end
+  local r = RANGES[name]
+  if r == nil then return nil end
+  local lo_ok = (r[4] and x > r[1]) or (not r[4] and x >= r[1])
+  if lo_ok and x <= r[2] then return nil end
+  local fmt = is_int and "%d" or "%.10g"
+  local text = string.format("range: %s: %s=" .. fmt .. " outside %s" .. fmt .. ", " .. fmt .. "] %s", where,
+                             name, x, r[4] and "(" or "[", r[1], r[2], r[3])
+  return (text:gsub("%s+$", ""))
+end
 
 local function input_len(tvb, off)
   return 5 + 4 * tvb(off + 3, 1):uint() + 8 * tvb(off + 4, 1):uint()
@@ -131,14 +166,19 @@ local function input_problem(tvb, off, len)
   local t, ni, nd = tvb(off, 1):uint(), tvb(off + 3, 1):uint(), tvb(off + 4, 1):uint()
   local lay = PAYLOAD[t]
   if lay == nil then return "type: unknown SENSOR_TYPE " .. t end
+  local name = SENSOR_TYPES[t]:gsub(" ", "_")
   local expect = 5 + 4 * ni + 8 * nd
   if len ~= expect then
-    return string.format("length: %d bytes, header N_INT=%d N_DOUBLE=%d says %d", len, ni, nd, expect)
+    return string.format("length: %s: %d bytes, header N_INT=%d N_DOUBLE=%d says %d", name, len, ni, nd, expect)
   end
-  local int_ok = false
-  for _, k in ipairs(lay.int_forms) do if k == ni then int_ok = true end end
+  local int_ok, allowed = false, {}
+  for _, k in ipairs(lay.int_forms) do
+    if k == ni then int_ok = true end
+    for d = lay.n_required, #lay.doubles do allowed[#allowed + 1] = string.format("(%d,%d)", k, d) end
+  end
   if not int_ok or nd < lay.n_required or nd > #lay.doubles then
-    return string.format("form: (N_INT, N_DOUBLE)=(%d,%d) not allowed for %s", ni, nd, SENSOR_TYPES[t])
+    return string.format("form: %s: (N_INT, N_DOUBLE)=(%d,%d) not allowed; allowed %s", name, ni, nd,
+                         table.concat(allowed, ", "))
   end
   return nil
 end
@@ -158,16 +198,32 @@ local function dissect_input(tvb, pinfo, tree, off, len)
   local lay = PAYLOAD[t]
   local seq = u16(tvb(off + 1, 2))
   sub:append_text(string.format(", %s, SEQ %d", SENSOR_TYPES[t], seq))
+  local where = string.format("%s(%d,%d)", SENSOR_TYPES[t] == "GROUND TRUTH" and "GROUND_TRUTH" or SENSOR_TYPES[t],
+                              ni, nd)
+  local problem_text = nil
+  local function check(item, name, x, is_int)
+    if problem_text then return end
+    local why = value_problem(where, name, x, is_int)
+    if why then
+      problem_text = why
+      item:add_proto_expert_info(why:sub(1, 10) == "non_finite" and ef_nonfinite or ef_malformed, why)
+    end
+  end
   local p = off + 5
-  for i = 1, ni do add(sub, lay.int_fields[i], tvb(p, 4)); p = p + 4 end
+  for i = 1, ni do
+    local item = add(sub, lay.int_fields[i], tvb(p, 4))
+    check(item, lay.ints[i][1], i32(tvb(p, 4)), true)
+    p = p + 4
+  end
   local summary = {}
   for i = 1, nd do
     local item = add(sub, lay.double_fields[i], tvb(p, 8))
     local x = f64(tvb(p, 8))
-    if not finite(x) then item:add_proto_expert_info(ef_nonfinite) end
+    check(item, lay.doubles[i][1], x, false)
     if i <= 3 then summary[#summary + 1] = string.format("%s=%.10g", lay.doubles[i][1], x) end
     p = p + 8
   end
+  if problem_text then return string.format("%s SEQ=%d rejected (%s)", SENSOR_TYPES[t], seq, problem_text) end
   return string.format("%s SEQ=%d %s", SENSOR_TYPES[t], seq, table.concat(summary, " "))
 end
 
@@ -176,7 +232,7 @@ local function dissect_output(tvb, pinfo, tree, off, len)
   local sub = tree:add(sfa, tvb(off, len), extended and "SFA OUTPUT (extended)" or "SFA OUTPUT")
   sub:add(F.message, extended and "OUTPUT_EXTENDED" or "OUTPUT")
   if len ~= 18 and len ~= 47 then
-    sub:add_proto_expert_info(ef_malformed, "length: OUTPUT: " .. len .. " bytes, expected 18 or 47")
+    sub:add_proto_expert_info(ef_malformed, "length: OUTPUT: " .. len .. " bytes, expected 18")  -- or 47
     return "OUTPUT malformed (" .. len .. " bytes)"
   end
   add(sub, F.out_seq, tvb(off, 2))
@@ -193,9 +249,28 @@ local function dissect_output(tvb, pinfo, tree, off, len)
     text = string.format("OUTPUT_EXTENDED SEQ=%d arc_length=%.3f m speed=%.3f m/s status=%s", seq, arc,
                          f64(tvb(off + 18, 8)), FILTER_STATUS[st] or tostring(st))
   end
+  local where = extended and "OUTPUT_EXTENDED" or "OUTPUT"
+  if extended and i32(tvb(off + 43, 4)) < -1 then  -- the codec's first check of the extension
+    local why = string.format("range: %s: line_id=%d (only -1 means none)", where, i32(tvb(off + 43, 4)))
+    sub:add_proto_expert_info(ef_malformed, why)
+    return text .. " rejected (" .. why .. ")"
+  end
+  local names = { "epoch", "arc_length", "speed", "interval_low", "interval_high" }
   for k, item in ipairs(items) do
-    if not finite(f64(tvb(off + 2 + 8 * (k - 1), 8))) then
-      item:add_proto_expert_info(ef_nonfinite)
+    local x = f64(tvb(off + 2 + 8 * (k - 1), 8))
+    if not finite(x) then
+      local why = string.format("non_finite: %s: %s=%s is not finite", where, names[k], repr(x))
+      item:add_proto_expert_info(ef_nonfinite, why)
+      return text .. " rejected (" .. why .. ")"
+    end
+  end
+  if extended then
+    local low, high = f64(tvb(off + 26, 8)), f64(tvb(off + 34, 8))
+    if not (low <= arc and arc <= high) then
+      local why = string.format("range: %s: interval [%.10g, %.10g] does not contain arc_length=%.10g", where,
+                                low, high, arc)
+      sub:add_proto_expert_info(ef_malformed, why)
+      return text .. " rejected (" .. why .. ")"
     end
   end
   return text
