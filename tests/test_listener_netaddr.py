@@ -77,3 +77,12 @@ def test_listen_and_obcu_name_an_unresolvable_host():
     assert f"input socket (input.bind, input.port) {BAD_HOST}:{free}: cannot resolve the host" in line
     line = _one_line(_sfa("obcu", "--bind", BAD_HOST, "--port", str(free), "--quiet"))
     assert f"OBCU socket (--bind, --port) {BAD_HOST}:{free}: cannot resolve the host" in line
+
+
+def test_fault_proxy_names_its_addresses(busy_port):
+    line = _one_line(_sfa("faults", "proxy", "--listen", f"127.0.0.1:{busy_port}", "--forward", "127.0.0.1:9",
+                          "--duration", "1"))  # fmt: skip
+    assert f"proxy listen socket (--listen) 127.0.0.1:{busy_port}: address already in use" in line
+    line = _one_line(_sfa("faults", "proxy", "--listen", "127.0.0.1:0", "--forward", f"{BAD_HOST}:9",
+                          "--duration", "1"))  # fmt: skip
+    assert f"proxy forward address (--forward) {BAD_HOST}:9: cannot resolve the host" in line

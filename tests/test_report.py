@@ -151,10 +151,13 @@ def test_report_html_is_self_contained_with_verdict_and_no_link_in_a_replay(run,
     assert verdict in page
     for name in FIGURES:
         assert (tmp_path / f"{name}.png").stat().st_size > 5000
+    assert "warning:" not in page
     run["data"].link = {"state": "up", "acks": 12}
+    run["data"].warnings = ["c.pcap: capture truncated mid-record: skipped the last 20 bytes (1 record)"]
     page = write_report(run["data"], tmp_path / "demo").read_text()
-    run["data"].link = None
+    run["data"].link, run["data"].warnings = None, []
     assert "<h2>OBCU link</h2>" in page and "<td>acks</td><td>12</td>" in page
+    assert "warning: c.pcap: capture truncated mid-record: skipped the last 20 bytes" in page
 
 
 def test_nees_verdicts():
