@@ -129,7 +129,7 @@ def test_cli_writes_every_file_and_byte_identical_estimates(world, tmp_path):
     assert labels[0] == "sfa" and len(labels) == 4
     html = (outs[0] / "report.html").read_text()
     assert html.count("data:image/png;base64,") == 5  # error, status, speed, innovations, map
-    assert "Consistency (NEES)" in html and "OBCU link" not in html  # no OBCU in a replay
+    assert "Consistency (NEES)" in html and "<h2>OBCU link</h2>" not in html  # no OBCU in a replay
     pq = pytest.importorskip("pyarrow.parquet")
     table = pq.read_table(outs[0] / "estimates.parquet")
     assert table.column_names == header + ["reasons"]

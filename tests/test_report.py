@@ -146,7 +146,9 @@ def test_report_html_is_self_contained_with_verdict_and_no_link_in_a_replay(run,
     path = write_report(run["data"], tmp_path)
     page = path.read_text()
     assert page.count('src="data:image/png;base64,') == len(FIGURES)
-    assert "<h2>Consistency (NEES): " in page and "OBCU link" not in page
+    assert "<h2>Consistency (NEES): " in page and "<h2>OBCU link</h2>" not in page
+    assert '"state": "down"' not in page and "there is no OBCU in a replay" in page
+    assert run["result"].metrics["link"]["state"] == "down"  # what the pipeline says, with no acks
     verdict, comment = nees_verdict(run["metrics"])
     assert verdict in page
     for name in FIGURES:

@@ -506,7 +506,11 @@ def write_report(data: ReportData, out: str | Path, filename: str = "report.html
     files = ""
     if data.files:
         files = "<p>files: " + ", ".join(html.escape(f) for f in data.files) + "</p>"
-    counters = html.escape(json.dumps(m.get("pipeline", {}), indent=2, default=_json_default))
+    shown = dict(m.get("pipeline", {}))
+    counters_note = ""
+    if data.link is None and shown.pop("link", None) is not None:  # a replay has no OBCU: no acks, so
+        counters_note = " (the OBCU link counters are left out: there is no OBCU in a replay)"  # "down"
+    counters = html.escape(json.dumps(shown, indent=2, default=_json_default))
     page = (
         "<!doctype html><html><head><meta charset='utf-8'>"
         f"<title>{html.escape(data.title)}</title><style>body{{font-family:sans-serif;max-width:1100px;"
@@ -515,7 +519,8 @@ def write_report(data: ReportData, out: str | Path, filename: str = "report.html
         "overflow:auto}.warn{color:#a40;font-weight:bold}</style></head><body>"
         f"<h1>{html.escape(data.title)}</h1>{warn}{summary}{nees}<h2>Status</h2>{_status_table(data)}"
         f"{comp}{''.join(imgs)}{link}{files}{_dictionary()}"
-        f"<details><summary>Pipeline counters</summary><pre>{counters}</pre></details></body></html>\n"
+        f"<details><summary>Pipeline counters{counters_note}</summary><pre>{counters}</pre></details>"
+        "</body></html>\n"
     )
     path = out / filename
     path.write_text(page, encoding="utf-8")
