@@ -287,7 +287,7 @@ def _status_figure(plt, data: ReportData):
     ax.set_xlabel("time since the first estimate [s]")
     note = ""
     if reasons is None:
-        note = " (reasons not recorded for this run)"
+        note = " (reasons not recorded for this run: the --fast replay does not keep them)"
     elif data.reasons_note:
         note = f" (reasons: {data.reasons_note})"
     ax.set_title("filter status and the reasons for it" + note, fontsize=9)
