@@ -247,6 +247,7 @@ def test_cli_errors_are_one_line(world, tmp_path):
     cases = [
         (["replay", str(tmp_path / "missing.pcap"), "--out", str(tmp_path / "o")], "cannot open"),
         (["replay", str(world["cap"]), "--out", str(tmp_path / "o"), "--port", "9"], "no UDP datagram"),
+        (["replay", str(world["cap"]), "--out", str(tmp_path / "o"), "--events", "no.csv"], "--events no"),
         (
             ["replay", str(world["cap"]), "--out", str(tmp_path / "o"), "--track", str(tmp_path / "no.db")],
             "no such file",

@@ -73,6 +73,8 @@ def run(args: argparse.Namespace) -> int:
         raise ToolError(f"track {track_path}: no such file")
     track = TrackDatabase.open(track_path)
     truth = read_truth_csv(args.truth) if args.truth else None
+    if args.events and not Path(args.events).is_file():
+        raise ToolError(f"--events {args.events}: no such file")
     port = args.port if args.port is not None else cfg.input.port
     if not 1 <= port <= 65535:
         raise ToolError(f"--port {port}: must be in 1..65535")
@@ -121,8 +123,6 @@ def run(args: argparse.Namespace) -> int:
 
         events_path = args.events or (Path(args.truth).with_name("events.csv") if args.truth else None)
         events = read_events_csv(events_path) if events_path and Path(events_path).is_file() else None
-        if args.events and events is None:
-            raise ToolError(f"--events {args.events}: no such file")
         data = replay_report_data(
             result, metrics, truth, track, baselines, comparison, events,
             title=f"sfa replay: {Path(args.capture).name}",
