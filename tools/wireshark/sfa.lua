@@ -149,8 +149,9 @@ local function value_problem(where, name, x, is_int)
   if r == nil then return nil end
   local lo_ok = (r[4] and x > r[1]) or (not r[4] and x >= r[1])
   if lo_ok and x <= r[2] then return nil end
-  local fmt = is_int and "%d" or "%.10g"
-  local text = string.format("range: %s: %s=" .. fmt .. " outside %s" .. fmt .. ", " .. fmt .. "] %s", where,
+  -- the value to the last bit (%.17g round-trips; Python's repr is the shortest such), bounds as the codec's
+  local vfmt, bfmt = is_int and "%d" or "%.17g", is_int and "%d" or "%.10g"
+  local text = string.format("range: %s: %s=" .. vfmt .. " outside %s" .. bfmt .. ", " .. bfmt .. "] %s", where,
                              name, x, r[4] and "(" or "[", r[1], r[2], r[3])
   return (text:gsub("%s+$", ""))
 end
@@ -267,7 +268,7 @@ local function dissect_output(tvb, pinfo, tree, off, len)
   if extended then
     local low, high = f64(tvb(off + 26, 8)), f64(tvb(off + 34, 8))
     if not (low <= arc and arc <= high) then
-      local why = string.format("range: %s: interval [%.10g, %.10g] does not contain arc_length=%.10g", where,
+      local why = string.format("range: %s: interval [%.17g, %.17g] does not contain arc_length=%.17g", where,
                                 low, high, arc)
       sub:add_proto_expert_info(ef_malformed, why)
       return text .. " rejected (" .. why .. ")"
