@@ -9,6 +9,7 @@ Live (``--live --target HOST:PORT``): one process per module sends to the listen
 from __future__ import annotations
 
 import argparse
+import socket
 import sys
 
 
@@ -76,6 +77,12 @@ def _target(text: str | None, default_port: int) -> tuple[str, int]:
         raise SimError(f"--target port must be an integer, not {port!r}") from None
     if not 1 <= value <= 65535:
         raise SimError(f"--target port must be in 1..65535, not {value}")
+    host = host.strip("[]")
+    try:  # before any module process starts: a bad name is one line, not a traceback per module
+        socket.getaddrinfo(host, value, type=socket.SOCK_DGRAM)
+    except OSError as exc:
+        why = exc.strerror or exc
+        raise SimError(f"--target {text!r}: cannot resolve the host {host!r} ({why})") from None
     return (host, value)
 
 
@@ -110,6 +117,7 @@ def run(args: argparse.Namespace) -> int:
     if not 16 <= args.auth_tag_bytes <= 32:
         raise SimError("--auth-tag-bytes must be in 16..32")
     sc = load_scenario(args.scenario)
+    target = _target(args.target, sc.network.listener_port) if args.live else None
     t0 = time.perf_counter()
     run_ = generate(sc, seed=args.seed, max_duration_s=args.duration)
     gen_s = time.perf_counter() - t0
@@ -123,7 +131,6 @@ def run(args: argparse.Namespace) -> int:
     if args.live:
         from .live import module_auth, run_live
 
-        target = _target(args.target, sc.network.listener_port)
         auth = None
         if authenticated:  # the epoch starts at the wall-clock second: a re-run never reuses (epoch, SEQ)
             auth = module_auth(

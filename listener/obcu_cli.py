@@ -143,7 +143,12 @@ def run(args: argparse.Namespace) -> int:
             def error_received(self, exc):
                 pass
 
-        transport, proto = await loop.create_datagram_endpoint(Proto, local_addr=(cfg.bind, cfg.port))
+        try:
+            transport, proto = await loop.create_datagram_endpoint(Proto, local_addr=(cfg.bind, cfg.port))
+        except OSError as exc:
+            from listener.netaddr import address_error
+
+            raise address_error(exc, "OBCU socket (--bind, --port)", cfg.bind, cfg.port) from None
 
         def on_timer():
             state["timer"] = None

@@ -30,6 +30,7 @@ from typing import Any
 from listener.codec import HEADER_SIZE, INPUT_FORMS, RejectReason, SensorType
 from listener.config import ListenerConfig
 from listener.jsonlog import JsonLogger
+from listener.netaddr import address_error, bind_udp
 from listener.pipeline import Pipeline
 from listener.sdnotify import Notifier, watchdog_interval_s
 
@@ -285,7 +286,7 @@ class ListenerService:
             self.receive_buffer_granted = sock.getsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF)
         except OSError:  # pragma: no cover
             self.receive_buffer_granted = None
-        sock.bind((inp.bind, inp.port))
+        bind_udp(sock, inp.bind, inp.port, "input socket (input.bind, input.port)")
         sock.setblocking(False)
         return sock
 
@@ -300,9 +301,13 @@ class ListenerService:
         if inp.reader == "protocol":
             self._in, _ = await loop.create_datagram_endpoint(lambda: _InputProtocol(self), sock=sock)
         link = self.cfg.link
-        self._out, _ = await loop.create_datagram_endpoint(
-            lambda: _ObcuProtocol(self), remote_addr=(link.obcu_host, link.obcu_port)
-        )
+        try:
+            self._out, _ = await loop.create_datagram_endpoint(
+                lambda: _ObcuProtocol(self), remote_addr=(link.obcu_host, link.obcu_port)
+            )
+        except OSError as exc:
+            what = "OBCU (link.obcu_host, link.obcu_port)"
+            raise address_error(exc, what, link.obcu_host, link.obcu_port) from None
         if warm_up:
             t0 = time.perf_counter()
             self.pipeline.filter.warm_up()

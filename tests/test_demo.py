@@ -39,4 +39,10 @@ def test_demo_runs_end_to_end(tmp_path):
     m = summary["listener_metrics"]
     assert m["input"]["rejected"] == 0 and m["sequencing"]["lost"] == 0
     assert m["link"]["acks"] > 0
-    assert (out / "report.md").exists() and (out / "demo.png").stat().st_size > 10000
+    assert (out / "report.md").exists()
+    page = (out / "report.html").read_text()
+    assert page.count("data:image/png;base64,") == 5  # the replay's report: error, status, speed, ...
+    assert "<h2>OBCU link</h2>" in page and "Consistency (NEES)" in page
+    for name in ("capture.pcap", "truth.csv", "map.png", "innovations.png"):
+        assert (out / name).stat().st_size > 1000, name
+    assert (out / "events.csv").read_text().startswith("epoch,kind,detail\n")

@@ -128,7 +128,13 @@ def test_cli_writes_every_file_and_byte_identical_estimates(world, tmp_path):
     labels = [r["label"] for r in m["baselines"]]
     assert labels[0] == "sfa" and len(labels) == 4
     html = (outs[0] / "report.html").read_text()
-    assert html.count("data:image/png;base64,") == 4
+    assert html.count("data:image/png;base64,") == 5  # error, status, speed, innovations, map
+    assert "Consistency (NEES)" in html and "<h2>OBCU link</h2>" not in html  # no OBCU in a replay
+    pq = pytest.importorskip("pyarrow.parquet")
+    table = pq.read_table(outs[0] / "estimates.parquet")
+    assert table.column_names == header + ["reasons"]
+    rows = a.read_text().splitlines()[1:]
+    assert table.column("epoch").to_pylist() == [float(r.split(",")[0]) for r in rows]
     geo = json.loads((outs[0] / "estimates.geojson").read_text())
     assert geo["type"] == "FeatureCollection" and geo["features"][0]["geometry"]["type"] == "LineString"
 
@@ -205,10 +211,43 @@ def test_truncated_capture_keeps_the_valid_part(world, tmp_path):
     assert [g.payload for g in got] == [x[2] for x in world["dgrams"][: len(got)]]
 
 
+@pytest.mark.parametrize("cut", [1, 20, 60])  # inside the body (dpkt returns it short), or the header
+def test_truncated_capture_counts_the_skipped_bytes_and_records(world, tmp_path, cut):
+    data = world["cap"].read_bytes()
+    p = tmp_path / "cut.pcap"
+    p.write_bytes(data[:-cut])
+    whole, stats = CaptureStats(), CaptureStats()
+    n_whole = len(list(read_capture(world["cap"], 48000, whole)))
+    got = list(read_capture(p, 48000, stats))
+    last_record = 16 + len(frame_ethernet(world["dgrams"][-1][1], 48000, world["dgrams"][-1][2]))
+    assert (stats.truncated_records, stats.truncated_bytes) == (1, last_record - cut)
+    assert (len(got), stats.frames) == (n_whole - 1, whole.frames - 1)
+    assert whole.truncated_records == 0 and whole.truncation_warning(world["cap"]) is None
+
+
+def test_replay_of_a_truncated_capture_warns_with_the_counts(world, tmp_path):
+    data = world["cap"].read_bytes()
+    p = tmp_path / "cut.pcap"
+    p.write_bytes(data[:-20])
+    out = tmp_path / "o"
+    args = ["replay", str(p), "--track", str(world["track_path"]), "--out", str(out), "--no-baselines",
+            "--no-report", "--quiet"]  # fmt: skip
+    res = subprocess.run([sys.executable, "-m", "sfa", *args], capture_output=True, text=True, timeout=300)
+    assert res.returncode == 0, res.stderr
+    last_record = 16 + len(frame_ethernet(world["dgrams"][-1][1], 48000, world["dgrams"][-1][2]))
+    assert res.stderr.strip().splitlines() == [
+        f"sfa replay: warning: {p}: capture truncated mid-record: skipped the last {last_record - 20} bytes"
+        f" (1 incomplete record) after {len(world['dgrams']) + 1} complete records"
+    ]
+    capture = json.loads((out / "metrics.json").read_text())["capture"]
+    assert (capture["truncated_records"], capture["truncated_bytes"]) == (1, last_record - 20)
+
+
 def test_cli_errors_are_one_line(world, tmp_path):
     cases = [
         (["replay", str(tmp_path / "missing.pcap"), "--out", str(tmp_path / "o")], "cannot open"),
         (["replay", str(world["cap"]), "--out", str(tmp_path / "o"), "--port", "9"], "no UDP datagram"),
+        (["replay", str(world["cap"]), "--out", str(tmp_path / "o"), "--events", "no.csv"], "--events no"),
         (
             ["replay", str(world["cap"]), "--out", str(tmp_path / "o"), "--track", str(tmp_path / "no.db")],
             "no such file",

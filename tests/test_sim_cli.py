@@ -128,3 +128,12 @@ def test_live_cli_ctrl_c_sends_stop_and_exits_cleanly(tmp_path):
         rx.close()
     assert isinstance(decode_input(got[-1]), Stop)
     assert proc.returncode == 130 and "interrupted, STOP sent" in err
+
+
+def test_live_target_that_does_not_resolve_is_named_before_anything_is_sent():
+    res = sfa("sim", "tram-urban", "--live", "--target", "no-such-host.invalid:48000", "--duration", "1")
+    assert res.returncode == 2, res.stderr
+    assert res.stderr.strip().splitlines() == [
+        "sfa sim: error: --target 'no-such-host.invalid:48000': cannot resolve the host"
+        " 'no-such-host.invalid' (Name or service not known)"
+    ]

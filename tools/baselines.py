@@ -15,6 +15,10 @@ import numpy as np
 
 from tools.accuracy import accuracy
 
+#: baselines that hold their last value between measurements (sfa.baselines.gnss_projection holds each
+#: 1 Hz fix): the report draws them as steps at their fresh values, labelled as held
+HELD_BASELINES = frozenset({"GNSS projection"})
+
 
 def baseline_estimates(track, measurements) -> dict[str, dict[str, np.ndarray]]:
     """Run each baseline over ``measurements``; arrays of epoch and arc length per baseline name."""
@@ -27,7 +31,11 @@ def baseline_estimates(track, measurements) -> dict[str, dict[str, np.ndarray]]:
         plain_filterpy_ekf(track, measurements),
     ):
         ok = np.isfinite(res.epoch_s) & np.isfinite(res.arc_length_m)
-        out[res.name] = {"epoch": res.epoch_s[ok], "arc_length": res.arc_length_m[ok]}
+        out[res.name] = {
+            "epoch": res.epoch_s[ok],
+            "arc_length": res.arc_length_m[ok],
+            "held": res.name in HELD_BASELINES,
+        }
     return out
 
 

@@ -10,6 +10,7 @@ raises :class:`~tools.errors.CaptureError` naming the file.
 
 from __future__ import annotations
 
+import os
 import struct
 from collections import Counter
 from collections.abc import Iterator
@@ -42,6 +43,32 @@ class CaptureStats:
     frames: int = 0  #: records in the file
     datagrams: int = 0  #: UDP datagrams to the listener port returned
     skipped: Counter = field(default_factory=Counter)  #: frames skipped, by reason
+    truncated_bytes: int = 0  #: bytes of an incomplete last record, not read (file cut mid-record)
+    truncated_records: int = 0  #: incomplete records at the end of the file (0 or 1)
+
+    def truncation_warning(self, path: str | Path) -> str | None:
+        """A one-line warning when the file ended inside a record, else None."""
+        if not self.truncated_records:
+            return None
+        return (
+            f"{path}: capture truncated mid-record: skipped the last {self.truncated_bytes} bytes "
+            f"({self.truncated_records} incomplete record) after {self.frames} complete records"
+        )
+
+
+_PCAP_MAGIC_ORDER = {b"\xd4\xc3\xb2\xa1": "<", b"\x4d\x3c\xb2\xa1": "<", b"\xa1\xb2\xc3\xd4": ">",
+                     b"\xa1\xb2\x3c\x4d": ">"}  # fmt: skip
+_PCAP_RECORD_HEADER = 16  #: ts_sec, ts_frac, incl_len, orig_len
+
+
+def _classic_record_complete(fh, start: int, end: int) -> bool:
+    """Whether the classic-pcap record at ``start`` is whole (dpkt returns a short body silently)."""
+    head = os.pread(fh.fileno(), _PCAP_RECORD_HEADER, start)
+    order = _PCAP_MAGIC_ORDER.get(os.pread(fh.fileno(), 4, 0))
+    if order is None or len(head) < _PCAP_RECORD_HEADER:
+        return False
+    (incl_len,) = struct.unpack_from(f"{order}I", head, 8)
+    return end - start >= _PCAP_RECORD_HEADER + incl_len
 
 
 def _ip_of(dlt: int, buf: bytes):
@@ -101,14 +128,22 @@ def read_capture(
         if dlt not in (DLT_NULL, DLT_EN10MB, DLT_RAW_BSD, DLT_RAW, DLT_LOOP, DLT_LINUX_SLL, DLT_LINUX_SLL2):
             raise CaptureError(f"{p}: unsupported link type {dlt}")
         records = iter(reader)
+        size = os.fstat(fh.fileno()).st_size
+        classic = isinstance(reader, dpkt.pcap.Reader)
         index = 0
         while True:
+            start = fh.tell()
             try:
                 ts, buf = next(records)
             except StopIteration:
                 break
             except (dpkt.dpkt.NeedData, dpkt.dpkt.UnpackError, ValueError, struct.error):
-                stats.skipped["truncated_tail"] += 1
+                _truncated(stats, size - start)
+                break
+            # the file can only end inside its last record: check that one (dpkt hands back a short body)
+            end = fh.tell()
+            if classic and end >= size and not _classic_record_complete(fh, start, end):
+                _truncated(stats, size - start)
                 break
             index += 1
             stats.frames += 1
@@ -138,3 +173,9 @@ def read_capture(
             yield CapturedDatagram(float(ts), (_addr(ip), int(udp.sport)), int(udp.dport), payload)
     finally:
         fh.close()
+
+
+def _truncated(stats: CaptureStats, nbytes: int) -> None:
+    stats.skipped["truncated_tail"] += 1
+    stats.truncated_records += 1
+    stats.truncated_bytes += nbytes

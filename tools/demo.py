@@ -3,8 +3,12 @@
 Starts three kinds of real processes: the mock OBCU (``sfa obcu``), the listener (``sfa listen``) and
 the simulator's interface modules (``sfa sim --live``, one process per sensor), all on 127.0.0.1
 with free ports. It shows live progress (position, speed, error against truth, link state), waits for
-the scenario's STOP, then prints an accuracy summary against the simulator's truth and writes a
-report (Markdown, CSV and a PNG figure) into the output directory. No network beyond loopback.
+the scenario's STOP, then prints an accuracy summary against the simulator's truth and writes the
+run report into the output directory: ``report.html`` (tools/report.py, the same page as ``sfa
+replay``'s, with the OBCU link section), a short ``report.md``, the figures, and the datagrams the
+modules sent as ``capture.pcap`` with ``truth.csv`` and ``events.csv`` (``sfa replay`` takes them). The
+innovations and reasons come from an offline replay of that capture, labelled so: the live output
+carries neither. No network beyond loopback.
 """
 
 from __future__ import annotations

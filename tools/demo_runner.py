@@ -15,7 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
-from tools.accuracy import accuracy, along_track_errors
+from tools.accuracy import accuracy
 from tools.errors import ToolError
 from tools.processes import terminate
 
@@ -80,7 +80,8 @@ def _sfa(*args: str) -> list[str]:
 
 
 def _read_obcu_csv(path: Path) -> dict[str, np.ndarray]:
-    cols: dict[str, list[float]] = {"epoch": [], "arc_length": [], "speed": [], "lo": [], "hi": [], "seq": []}
+    names = ("epoch", "arc_length", "speed", "lo", "hi", "seq", "status", "line_id")
+    cols: dict[str, list[float]] = {k: [] for k in names}
     if not path.exists():
         return {k: np.array(v) for k, v in cols.items()}
     with open(path, newline="") as fh:
@@ -92,6 +93,8 @@ def _read_obcu_csv(path: Path) -> dict[str, np.ndarray]:
                 cols["speed"].append(float(row["speed"]) if row.get("speed") else np.nan)
                 cols["lo"].append(float(row["interval_low"]) if row.get("interval_low") else np.nan)
                 cols["hi"].append(float(row["interval_high"]) if row.get("interval_high") else np.nan)
+                cols["status"].append(float(row["status"]) if row.get("status") else np.nan)
+                cols["line_id"].append(float(row["line_id"]) if row.get("line_id") else -1.0)
             except (KeyError, ValueError):
                 continue  # a partially written last line while the OBCU is running
     return {k: np.array(v) for k, v in cols.items()}
@@ -115,7 +118,6 @@ def run_demo(opts: DemoOptions) -> int:
     sim = generate(sc, seed=opts.seed, max_duration_s=opts.duration_s)
     truth_t = np.asarray(sim.truth["epoch"], dtype=float)
     truth_s = np.asarray(sim.truth["arc_length"], dtype=float)
-    truth_v = np.asarray(sim.truth["speed"], dtype=float)
 
     listen_port = _free_udp_port()
     obcu_port = _free_udp_port()
@@ -233,7 +235,6 @@ def run_demo(opts: DemoOptions) -> int:
     if est["epoch"].size == 0:
         raise ToolError(f"the OBCU received no output (see {out}/listener.log and {out}/sim.log)")
     acc = accuracy(est["epoch"], est["arc_length"], truth_t, truth_s, est["lo"], est["hi"])
-    err = along_track_errors(est["epoch"], est["arc_length"], truth_t, truth_s)
     metrics = lst_log.last_metrics or {}
     summary = {
         "scenario": sc.name,
@@ -246,7 +247,8 @@ def run_demo(opts: DemoOptions) -> int:
         "listener_metrics": metrics,
     }
     (out / "summary.json").write_text(json.dumps(summary, indent=2, default=str))
-    report = _write_report(out, sc.name, est, err, truth_t, truth_v, acc, metrics)
+    print("  report: replaying the same datagrams offline for the innovations and reasons ...", flush=True)
+    report = _write_report(out, sc, sim, est, acc, metrics, obcu_log.events)
     print()
     print(
         f"sfa demo: {sc.name}, {summary['simulated_s']:.0f} s simulated, "
@@ -268,43 +270,108 @@ def run_demo(opts: DemoOptions) -> int:
     return 0 if listener_rc == 0 else 1
 
 
-def _write_report(out: Path, name, est, err, truth_t, truth_v, acc, metrics) -> Path:
-    import matplotlib
+def _live_estimates(est: dict[str, np.ndarray], track) -> dict[str, np.ndarray]:
+    """The OBCU's received estimates as report columns; lat/lon from the track (not on the wire)."""
+    n = est["epoch"].size
+    status = np.nan_to_num(est["status"], nan=0.0).astype(np.int64)
+    line_id = est["line_id"].astype(np.int64)
+    lat, lon = np.full(n, np.nan), np.full(n, np.nan)
+    for lid in np.unique(line_id[line_id >= 0]):
+        sel = line_id == lid
+        la, lo = track.line(int(lid)).latlon_at(est["arc_length"][sel])
+        lat[sel], lon[sel] = la, lo
+    return {
+        "epoch": est["epoch"], "arc_length": est["arc_length"], "speed": est["speed"],
+        "sigma": np.full(n, np.nan), "interval_low": est["lo"], "interval_high": est["hi"],
+        "status": status, "line_id": line_id, "lat": lat, "lon": lon,
+    }  # fmt: skip
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
 
-    t = est["epoch"] - truth_t[0]
-    fig, (ax1, ax2) = plt.subplots(2, 1, figsize=(10, 6), sharex=True)
-    ax1.plot(t, err, lw=0.8, label="estimate - truth")
-    if np.isfinite(est["lo"]).any():
-        truth_s = est["arc_length"] - err
-        ax1.fill_between(t, est["lo"] - truth_s, est["hi"] - truth_s, alpha=0.25, label="95 % interval")
-    ax1.axhline(0, color="k", lw=0.5)
-    ax1.set_ylabel("along-track error [m]")
-    ax1.legend(loc="upper right")
-    ax1.set_title(f"sfa demo: {name}")
-    ax2.plot(truth_t - truth_t[0], truth_v * 3.6, lw=0.8, label="truth")
-    if np.isfinite(est["speed"]).any():
-        ax2.plot(t, est["speed"] * 3.6, lw=0.8, label="estimate")
-    ax2.set_ylabel("speed [km/h]")
-    ax2.set_xlabel("time [s]")
-    ax2.legend(loc="upper right")
-    fig.tight_layout()
-    png = out / "demo.png"
-    fig.savefig(png, dpi=110)
-    plt.close(fig)
+def _gnss_fixes(sim) -> dict[str, np.ndarray]:
+    from listener.codec import DecodeError, GpsFix, decode_input
+
+    rows = []
+    for p in sim.packets:
+        if p.module != "gps":
+            continue
+        try:
+            m = decode_input(p.payload)
+        except DecodeError:
+            continue
+        if isinstance(m, GpsFix):
+            q = -1 if m.fix_quality is None else m.fix_quality
+            rows.append((p.arrival_s if m.epoch is None else m.epoch, m.lat, m.lon, q))
+    arr = np.array(rows, dtype=float).reshape(-1, 4)
+    return {"t": arr[:, 0], "lat": arr[:, 1], "lon": arr[:, 2], "fix_quality": arr[:, 3].astype(np.int64)}
+
+
+def _write_report(out: Path, sc, sim, est, acc, metrics, obcu_events) -> Path:
+    """report.html (tools.report, the replay's report) plus a short report.md pointing to it."""
+    from interface_modules.capture import write_events_csv, write_pcap, write_truth_csv
+    from listener.config import load_config
+    from tools.replay import ReplayOptions, replay_capture
+    from tools.replay_metrics import replay_metrics
+    from tools.report import ReportData, fault_windows, nees_verdict, write_report
+    from track_db import TrackDatabase, default_database_path
+
+    write_pcap(sim, out / "capture.pcap")  # what the modules sent, as a capture: sfa replay takes it
+    write_truth_csv(sim, out / "truth.csv")
+    write_events_csv(sim, out / "events.csv")
+    track = TrackDatabase.open(str(default_database_path()))
+    cfg = load_config(None, [f'filter.imu="{sc.imu.preset}"', f'filter.odometer="{sc.odometer.preset}"',
+                             f'filter.gps="{sc.gps.preset}"'])  # fmt: skip
+    truth = {k: np.asarray(sim.truth[k], dtype=float) for k in ("epoch", "arc_length", "speed", "lat", "lon")}
+    options = ReplayOptions(port=sc.network.listener_port, config=cfg)
+    rep = replay_capture(out / "capture.pcap", track, options)
+    rep_metrics = replay_metrics(rep, truth)
+    live = _live_estimates(est, track)
+    reasons = None
+    rep_new, rep_reasons = rep.new_estimates(), rep.new_reasons()
+    if rep_reasons is not None and rep_new["epoch"].size:  # the replay's reasons at each live estimate
+        k = np.clip(np.searchsorted(rep_new["epoch"], live["epoch"], side="right") - 1, 0, None)
+        reasons = rep_reasons[k]
+    m: dict = {
+        "rms_m": acc.rms_m, "p50_m": acc.p50_m, "p95_m": acc.p95_m, "max_m": acc.max_m,
+        "interval_coverage": acc.coverage, "messages": len(sim.packets), "new_estimates": acc.n,
+        "pipeline": metrics,
+    }  # fmt: skip
+    for key in ("nees_mean", "nees_band_95", "nees_samples"):  # sigma is not on the wire: the replay's
+        if key in rep_metrics:
+            m[key] = rep_metrics[key]
+            m["nees_source"] = "offline replay of the same datagrams: sigma is not on the wire"
+    link = dict(metrics.get("link", {}))
+    link["outputs received by the OBCU"] = int(est["epoch"].size)
+    link["distinct SEQs received"] = int(np.unique(est["seq"]).size)
+    link["OBCU exit"] = next((e for e in obcu_events if e.get("event") == "obcu_exit"), None)
+    end = float(live["epoch"][-1])
+    data = ReportData(
+        title=f"sfa demo: {sc.name}",
+        kind="demo",
+        estimates=live,
+        reasons=reasons,
+        reasons_note="offline replay of the same datagrams (reasons are not on the wire)",
+        truth=truth,
+        fixes=_gnss_fixes(sim),
+        updates=rep.updates,
+        updates_note="offline replay of the same datagrams",
+        outages=[tuple(o) for o in rep_metrics.get("gnss_outages", [])],
+        faults=[w for w in fault_windows(sim.events, end, float(truth["epoch"][0])) if w[0] <= end],
+        metrics=m,
+        link=link,
+        track=track,
+        files=["capture.pcap", "truth.csv", "events.csv", "obcu.csv", "summary.json", "listener.log"],
+    )
+    html_path = write_report(data, out)
+    verdict, _ = nees_verdict(m)
     cov = "n/a" if acc.coverage is None else f"{100 * acc.coverage:.1f} %"
-    md = out / "report.md"
-    md.write_text(
-        f"# sfa demo: {name}\n\n"
+    (out / "report.md").write_text(
+        f"# sfa demo: {sc.name}\n\nThe full report is [report.html](report.html) (figures embedded).\n\n"
         f"| figure | value |\n|---|---|\n"
         f"| estimates received by the OBCU | {acc.n} |\n"
         f"| rms along-track error | {acc.rms_m:.3f} m |\n"
         f"| p95 along-track error | {acc.p95_m:.3f} m |\n"
         f"| max along-track error | {acc.max_m:.3f} m |\n"
-        f"| 95 % interval coverage | {cov} |\n\n"
-        f"![error and speed](demo.png)\n\n"
-        f"Listener metrics at exit:\n\n```json\n{json.dumps(metrics, indent=2, default=str)}\n```\n"
+        f"| 95 % interval coverage | {cov} |\n"
+        f"| NEES (offline replay of the same datagrams) | {verdict} |\n"
     )
-    return md
+    return html_path

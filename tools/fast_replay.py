@@ -556,7 +556,10 @@ def _replay_ingested(got, track, options, ingest_s: float = 0.0):
         datagrams=n,
         skipped_sensor=0,
     )
-    result.capture = {"frames": last_frame, "datagrams": n, "skipped": dict(skipped)}
+    result.capture = {  # the fast scan refuses a truncated file (the exact reader counts and warns)
+        "frames": last_frame, "datagrams": n, "skipped": dict(skipped),
+        "truncated_bytes": 0, "truncated_records": 0, "warnings": [],
+    }  # fmt: skip
     lap("counters")
     return result, _info(True, "", h, compiled, state.python_steps, timing)
 

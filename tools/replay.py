@@ -26,6 +26,7 @@ from listener.config import ListenerConfig
 from listener.defaults import DEFAULT_LISTENER_PORT
 from listener.pipeline import Pipeline
 from tools.errors import ToolError
+from tools.estimates_schema import reason_bits
 
 SENSOR_TYPES = {"imu": 1, "odometer": 2, "gps": 3}
 ESTIMATE_COLUMNS = (
@@ -70,11 +71,18 @@ class ReplayResult:
     skipped_sensor: int  #: datagrams of disabled sensors
     capture: dict[str, Any] = field(default_factory=dict)  #: capture reader counters
     measurements: list = field(default_factory=list)  #: dated measurements, in filter order (if recorded)
+    reasons: np.ndarray | None = None  #: status reason bits per estimates row (None: not recorded)
 
     def new_estimates(self) -> dict[str, np.ndarray]:
         """Rows of new estimates only (no retransmissions)."""
         keep = self.estimates["retransmit"] == 0
         return {k: v[keep] for k, v in self.estimates.items()}
+
+    def new_reasons(self) -> np.ndarray | None:
+        """Reason bits of the new estimates (None where the replay did not record them: --fast)."""
+        if self.reasons is None:
+            return None
+        return self.reasons[self.estimates["retransmit"] == 0]
 
 
 def build_pipeline(track, options: ReplayOptions) -> Pipeline:
@@ -108,6 +116,7 @@ def replay_datagrams(
     disabled = set(SENSOR_TYPES.values()) - enabled
 
     est_rows: list[tuple] = []
+    reason_rows: list[int] = []
     upd_t: list[float] = []
     upd_kind: list[str] = []
     upd_outcome: list[int] = []
@@ -145,6 +154,7 @@ def replay_datagrams(
             if est is None:  # pragma: no cover - every output passes through the encoder
                 raise ToolError(f"output SEQ {msg.seq} was not recorded")
             est_rows.append(estimate_row(msg, est, retransmit, now))
+            reason_rows.append(reason_bits(est.reasons))
 
     n = 0
     skipped = 0
@@ -209,6 +219,7 @@ def replay_datagrams(
         datagrams=n,
         skipped_sensor=skipped,
         measurements=measurements,
+        reasons=np.array(reason_rows, dtype=np.int64),
     )
 
 
@@ -259,7 +270,15 @@ def replay_capture(
             result = replay_datagrams(gen, track, options, progress=lambda k: bar.advance(task, k))
     else:
         result = replay_datagrams(gen, track, options)
-    result.capture = {"frames": stats.frames, "datagrams": stats.datagrams, "skipped": dict(stats.skipped)}
+    warning = stats.truncation_warning(path)
+    result.capture = {
+        "frames": stats.frames,
+        "datagrams": stats.datagrams,
+        "skipped": dict(stats.skipped),
+        "truncated_bytes": stats.truncated_bytes,
+        "truncated_records": stats.truncated_records,
+        "warnings": [] if warning is None else [warning],
+    }
     if stats.datagrams == 0:
         raise ToolError(
             f"{path}: no UDP datagram to port {options.port} in the capture "

@@ -10,6 +10,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--track", help="SQLite track database (default: the bundled Jena tram network)")
     parser.add_argument("--out", required=True, help="output directory")
     parser.add_argument("--truth", help="truth CSV (epoch, arc_length, speed) for accuracy figures")
+    parser.add_argument(
+        "--events",
+        help="events CSV of sfa sim (epoch, kind, detail): fault windows shaded in the report "
+        "(default: events.csv beside --truth, if there is one)",
+    )
     parser.add_argument("--port", type=int, help="listener port to take from the capture (default 48000)")
     parser.add_argument("--config", help="listener TOML configuration (see listener/config/)")
     parser.add_argument(
@@ -52,15 +57,10 @@ def run(args: argparse.Namespace) -> int:
 
     from listener.config import load_config
     from tools.errors import ToolError
+    from tools.estimates_schema import write_estimates_parquet
     from tools.replay import ReplayOptions, replay_capture
     from tools.replay_metrics import read_truth_csv, replay_metrics
-    from tools.replay_report import (
-        write_estimates_csv,
-        write_figures,
-        write_geojson,
-        write_html,
-        write_metrics_json,
-    )
+    from tools.replay_report import write_estimates_csv, write_geojson, write_metrics_json
     from track_db import TrackDatabase, default_database_path
 
     overrides = list(args.set)
@@ -73,6 +73,8 @@ def run(args: argparse.Namespace) -> int:
         raise ToolError(f"track {track_path}: no such file")
     track = TrackDatabase.open(track_path)
     truth = read_truth_csv(args.truth) if args.truth else None
+    if args.events and not Path(args.events).is_file():
+        raise ToolError(f"--events {args.events}: no such file")
     port = args.port if args.port is not None else cfg.input.port
     if not 1 <= port <= 65535:
         raise ToolError(f"--port {port}: must be in 1..65535")
@@ -96,6 +98,8 @@ def run(args: argparse.Namespace) -> int:
             args.capture, track, options, show_progress=not args.quiet and sys.stderr.isatty()
         )
     wall = time.perf_counter() - t0
+    for warning in result.capture.get("warnings", ()):
+        print(f"sfa replay: warning: {warning}", file=sys.stderr)
     metrics = replay_metrics(result, truth)
     metrics["replay_wall_s"] = wall
     metrics["replay_path"] = path_used
@@ -109,13 +113,21 @@ def run(args: argparse.Namespace) -> int:
         comparison, baselines = run_baselines(args.capture, track, options, truth, metrics)
         metrics["baselines"] = comparison
     write_estimates_csv(result, out / "estimates.csv")
+    if write_estimates_parquet(result, out / "estimates.parquet") is None:
+        print("sfa replay: estimates.parquet not written: pyarrow is not installed "
+              "(pip install 'sfa-positioning[parquet]')", file=sys.stderr)  # fmt: skip
     write_metrics_json(metrics, out / "metrics.json")
     write_geojson(result, out / "estimates.geojson")
     if not args.no_report:
-        figures = write_figures(result, metrics, truth, track, out, baselines)
-        write_html(
-            metrics, figures, out / "report.html", f"sfa replay: {Path(args.capture).name}", comparison
-        )
+        from tools.report import read_events_csv, replay_report_data, write_report
+
+        events_path = args.events or (Path(args.truth).with_name("events.csv") if args.truth else None)
+        events = read_events_csv(events_path) if events_path and Path(events_path).is_file() else None
+        data = replay_report_data(
+            result, metrics, truth, track, baselines, comparison, events,
+            title=f"sfa replay: {Path(args.capture).name}",
+        )  # fmt: skip
+        write_report(data, out)
 
     if args.sweep or args.sweep_file:
         from tools.sweep import configs_from_axes, configs_from_file, parse_axes, run_sweep, write_table

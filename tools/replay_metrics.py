@@ -36,7 +36,10 @@ def read_truth_csv(path: str | Path) -> dict[str, np.ndarray]:
         for need in ("epoch", "arc_length", "speed"):
             if need not in cols:
                 raise ToolError(f"{p}: truth CSV lacks the column {need!r} (has {', '.join(cols)})")
-        idx = {name: cols.index(name) for name in ("epoch", "arc_length", "speed")}
+        names = ["epoch", "arc_length", "speed"]
+        if "lat" in cols and "lon" in cols:  # sfa sim's truth has the true path too (for the map)
+            names += ["lat", "lon"]
+        idx = {name: cols.index(name) for name in names}
         rows: dict[str, list[float]] = {k: [] for k in idx}
         try:
             for lineno, row in enumerate(reader, start=2):

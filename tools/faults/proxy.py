@@ -165,9 +165,15 @@ class UdpFaultProxy:
         """Serve until SIGTERM/SIGINT, ``duration_s``, or ``idle_exit_s`` without client datagrams."""
         loop = asyncio.get_running_loop()
         self._loop = loop
-        self._listen_tr, _ = await loop.create_datagram_endpoint(
-            lambda: _Listen(self), local_addr=self.listen
-        )
+        from listener.netaddr import address_error, resolve_udp
+
+        resolve_udp(self.forward_to[0], self.forward_to[1], "proxy forward address (--forward)")
+        try:
+            self._listen_tr, _ = await loop.create_datagram_endpoint(
+                lambda: _Listen(self), local_addr=self.listen
+            )
+        except OSError as exc:
+            raise address_error(exc, "proxy listen socket (--listen)", *self.listen) from None
         sock = self._listen_tr.get_extra_info("sockname")
         self.bound = (sock[0], sock[1])
         done = asyncio.Event()
