@@ -69,3 +69,12 @@ def test_sfa_command_turns_on_numba_slp_vectorizer_unless_set():
         [sys.executable, "-c", code], capture_output=True, text=True, timeout=120, env=env, check=True
     ).stdout.split()
     assert out == ["False", "False", "0"]
+
+
+def test_replay_jobs_must_be_positive(capsys):
+    """``sfa replay --jobs 0`` is a one-line argparse error naming the option and the value."""
+    with pytest.raises(SystemExit) as exc:
+        cli.main(["replay", "capture.pcap", "--track", "t.db", "--out", "o", "--jobs", "0"])
+    assert exc.value.code == 2
+    err = capsys.readouterr().err
+    assert "--jobs" in err and "must be >= 1, got '0'" in err

@@ -5,6 +5,17 @@ from __future__ import annotations
 import argparse
 
 
+def _positive_int(text: str) -> int:
+    """argparse type: an integer >= 1 (argparse names the option and the value)."""
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not an integer") from None
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"must be >= 1, got {text!r}")
+    return value
+
+
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("capture", help="pcap or pcapng capture taken on the listener's host")
     parser.add_argument("--track", help="SQLite track database (default: the bundled Jena tram network)")
@@ -36,7 +47,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument("--sweep-file", help="TOML file of [[config]] tables to sweep")
     parser.add_argument(
-        "--jobs", type=int, default=0, help="parallel replays for sweeps (default: all cores)"
+        "--jobs", type=_positive_int, default=None, help="parallel replays for sweeps (default: all cores)"
     )
     parser.add_argument("--no-baselines", action="store_true", help="skip the baseline estimators")
     parser.add_argument("--no-report", action="store_true", help="skip figures and report.html")
@@ -135,7 +146,7 @@ def run(args: argparse.Namespace) -> int:
         configs = configs_from_file(args.sweep_file) if args.sweep_file else []
         if args.sweep:
             configs += configs_from_axes(parse_axes(args.sweep))
-        jobs = args.jobs if args.jobs > 0 else (os.cpu_count() or 1)
+        jobs = args.jobs if args.jobs is not None else (os.cpu_count() or 1)
         rows = run_sweep(args.capture, track_path, options, configs, truth, jobs)
         csv_path, md_path = write_table(rows, out)
         print(md_path.read_text(), end="")
