@@ -17,7 +17,7 @@ import pytest
 from interface_modules.presets import GPS_PRESETS, IMU_PRESETS, ODOMETER_PRESETS
 from sfa import batch
 from sfa import layout as L
-from sfa.presets import filter_config_for
+from sfa.presets import datasheet_config_for, filter_config_for
 from sfa.synthetic import Faults, build_track_db, generate
 from sfa.track_arrays import TrackArrays
 from tools.bench_table import DOC_BEGIN, DOC_END, Row, to_markdown, update_doc
@@ -117,6 +117,28 @@ def test_c_reference_agrees_with_the_compiled_kernels(tmp_path):
     np.testing.assert_array_equal(sb[1], sa[1])
     # the library is cached by source hash: a second build loads the same file
     assert mod.build(tmp_path / "cache").path == ref.path
+
+
+def test_c_reference_agrees_with_the_datasheet_configuration(tmp_path):
+    """The datasheet presets: the adaptive GNSS error model (sfa.gnss_noise), the map terms of the
+    gyro and the registration noise, with the gyro on so that its branches run too."""
+    mod = _cref()
+    if mod.find_compiler() is None:
+        pytest.skip("no C compiler on this machine")
+    ref = mod.build(tmp_path / "cache")
+    db, packed, line = _packed_run(tmp_path)
+    cfg = datasheet_config_for(use_gyro=True).to_array()
+    assert cfg[L.K_AD_WINDOW] > 0.0
+    fa, ia, sa = _run(batch.run_packed, packed, line, cfg)
+    fb, ib, sb = _run(ref.run_packed, packed, line, cfg)
+    db.close()
+    np.testing.assert_array_equal(ia, ib)
+    np.testing.assert_array_equal(sa[3], sb[3])
+    # the model moved off the preset (so the adaptive branches ran), identically in both
+    assert sa[2][L.A_GM_TAU] != cfg[L.K_GM_TAU] and sa[2][L.A_AD_W] > cfg[L.K_AD_PRIOR]
+    np.testing.assert_array_equal(sb[2][L.A_GM_SIG:L.A_WK_PHT], sa[2][L.A_GM_SIG:L.A_WK_PHT])
+    np.testing.assert_array_equal(fb, fa)
+    np.testing.assert_array_equal(sb[1], sa[1])
 
 
 def test_c_reference_agrees_through_sensor_faults(tmp_path):

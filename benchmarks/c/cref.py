@@ -52,8 +52,9 @@ class CReferenceUnavailable(RuntimeError):
 
 
 def layout_header() -> str:
-    """``#define`` lines for every integer slot of sfa.layout the C code uses, NVALS and COS_MAX_ROLL
-    (sfa.kernels, written with repr: the same double)."""
+    """``#define`` lines for every integer slot of sfa.layout the C code uses, the adaptive GNSS model's
+    layout constants and sfa.gnss_noise's constants (GN_*), NVALS and COS_MAX_ROLL (sfa.kernels); floats
+    written with repr: the same doubles."""
     from sfa import layout
     from sfa.batch import NV
 
@@ -64,10 +65,18 @@ def layout_header() -> str:
     ]
     for name in sorted(vars(layout)):
         value = getattr(layout, name)
-        if type(value) is not int:
-            continue
-        if name in _NAMES or name.startswith(_PREFIXES):
+        if type(value) is int and (name in _NAMES or name.startswith(_PREFIXES + ("AD_",))):
             lines.append(f"#define {name} {value}")
+        elif name.startswith("AD_") and type(value) is float:
+            lines.append(f"#define {name} {value!r}")
+        elif name.startswith("AD_") and type(value) is tuple:
+            lines.append(f"static const double {name}[] = {{{', '.join(repr(float(v)) for v in value)}}};")
+    from sfa import gnss_noise
+
+    # the adaptive GNSS model's constants, written with repr (the same doubles), prefixed GN_
+    for name in ("LAG_TOL_S", "MIN_NORMAL_DOT", "MIN_PAIR_DISTANCE_M", "CLIP_SIGMA", "FLOOR_GM",
+                 "FLOOR_WHITE", "CEILING", "TAU_MIN_S", "TAU_MAX_S", "TAU_N"):
+        lines.append(f"#define GN_{name} {getattr(gnss_noise, name)!r}")
     from sfa.kernels import COS_MAX_ROLL
 
     lines += [f"#define NVALS {NV}", f"#define COS_MAX_ROLL {COS_MAX_ROLL!r}", "#endif", ""]

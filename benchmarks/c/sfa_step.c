@@ -68,6 +68,148 @@ static void geom_at(const double *ts, const double *te, const double *tn, long n
     *no = tn[i] + *dn * u;
 }
 
+/* kernels.cross_track: signed distance from the line, the normal there and the foot's arc length */
+static double cross_track(const double *ts, const double *te, const double *tn, long n, double s,
+                          double east, double north, double *ne, double *nn, double *s_foot) {
+    double e, no, de, dn, g;
+    for (int k = 0; k < 3; k++) {
+        geom_at(ts, te, tn, n, s, &e, &no, &de, &dn);
+        g = sqrt(de * de + dn * dn);
+        s += ((east - e) * de + (north - no) * dn) / (g * g);
+    }
+    geom_at(ts, te, tn, n, s, &e, &no, &de, &dn);
+    g = sqrt(de * de + dn * dn);
+    *ne = -dn / g;
+    *nn = de / g;
+    *s_foot = s;
+    return (east - e) * *ne + (north - no) * *nn;
+}
+
+/* ---- sfa.gnss_noise: the adaptive GNSS error model */
+/* Python's min/max: the first argument unless the second is strictly smaller/larger */
+static double gn_min(double a, double b) { return b < a ? b : a; }
+static double gn_max(double a, double b) { return b > a ? b : a; }
+
+static double gn_lag(int i) { return i == 0 ? 0.0 : AD_LAGS_S[i - 1]; }
+
+static void gn_restart(double *aux) {
+    aux[A_AD_HN] = 0.0;
+    aux[A_AD_HI] = 0.0;
+}
+
+static void gn_reset(double *aux, const double *cfg) {
+    double sg = cfg[K_GM_SIGMA], tau = cfg[K_GM_TAU], sw = cfg[K_GPS_WHITE];
+    aux[A_GM_SIG] = sg;
+    aux[A_GM_TAU] = tau;
+    aux[A_GW_SIG] = sw;
+    aux[A_AD_SH] = cfg[K_GPS_NOMINAL_SIGMA_H];
+    aux[A_AD_T] = NAN;
+    for (int i = 0; i < AD_NMOM; i++) {
+        double lag = gn_lag(i);
+        double m = sg * sg * exp(-lag / tau);
+        if (i == 0) m += sw * sw;
+        aux[A_AD_M + i] = m;
+        aux[A_AD_L + i] = lag;
+        aux[A_AD_W + i] = cfg[K_AD_PRIOR];
+    }
+    gn_restart(aux);
+}
+
+static void gn_accumulate(double *aux, int i, double value, double lag, double h, double window) {
+    double w = gn_min(aux[A_AD_W + i] + h, window);
+    double a = h / w;
+    aux[A_AD_M + i] += a * (value - aux[A_AD_M + i]);
+    aux[A_AD_L + i] += a * (lag - aux[A_AD_L + i]);
+    aux[A_AD_W + i] = w;
+}
+
+static void gn_fit(double *aux, const double *cfg) {
+    double best = INFINITY, best_tau = cfg[K_GM_TAU], best_s2 = 0.0;
+    double step = (log(GN_TAU_MAX_S) - log(GN_TAU_MIN_S)) / (GN_TAU_N - 1);
+    for (int g = 0; g < GN_TAU_N; g++) {
+        double tau = exp(log(GN_TAU_MIN_S) + g * step);
+        double num = 0.0, den = 0.0;
+        for (int i = 1; i < AD_NMOM; i++) {
+            double e = exp(-aux[A_AD_L + i] / tau);
+            num += aux[A_AD_W + i] * aux[A_AD_M + i] * e;
+            den += aux[A_AD_W + i] * e * e;
+        }
+        double s2 = den > 0.0 ? gn_max(num / den, 0.0) : 0.0;
+        double err = 0.0;
+        for (int i = 1; i < AD_NMOM; i++) {
+            double r = aux[A_AD_M + i] - s2 * exp(-aux[A_AD_L + i] / tau);
+            err += aux[A_AD_W + i] * r * r;
+        }
+        if (err < best) {
+            best = err;
+            best_tau = tau;
+            best_s2 = s2;
+        }
+    }
+    double m0 = aux[A_AD_M];
+    double s2 = gn_min(best_s2, m0);
+    double top = GN_CEILING * aux[A_AD_SH];
+    aux[A_GM_SIG] = gn_max(gn_min(sqrt(s2), top), GN_FLOOR_GM * cfg[K_GM_SIGMA]);
+    aux[A_GM_TAU] = best_tau;
+    aux[A_GW_SIG] = gn_max(gn_min(sqrt(gn_max(m0 - s2, 0.0)), top), GN_FLOOR_WHITE * cfg[K_GPS_WHITE]);
+}
+
+static void gn_store(double *aux, long b, double t, double c, double ne, double nn, double s) {
+    aux[b] = t;
+    aux[b + 1] = c;
+    aux[b + 2] = ne;
+    aux[b + 3] = nn;
+    aux[b + 4] = s;
+}
+
+static void gn_pair(double *aux, int i, double c, double ne, double nn, double s, long b, double t, double h,
+                    double window) {
+    if (fabs(s - aux[b + 4]) < GN_MIN_PAIR_DISTANCE_M) return;
+    double dot = ne * aux[b + 2] + nn * aux[b + 3];
+    if (dot > GN_MIN_NORMAL_DOT) gn_accumulate(aux, i, c * aux[b + 1] / dot, t - aux[b], h, window);
+}
+
+static void gn_observe(double *aux, const double *cfg, double t, double c, double ne, double nn, double s,
+                       double sigma_h) {
+    double window = cfg[K_AD_WINDOW];
+    if (window <= 0.0 || !(isfinite(c) && isfinite(t))) return;
+    double h = isnan(aux[A_AD_T]) ? 1.0 : gn_min(gn_max(t - aux[A_AD_T], 0.0), 1.0);
+    if (h <= 0.0) return;
+    aux[A_AD_T] = t;
+    double lim = GN_CLIP_SIGMA * sqrt(aux[A_AD_M]);
+    double cc = gn_min(gn_max(c, -lim), lim);
+    gn_accumulate(aux, 0, cc * cc, 0.0, h, window);
+    if (isfinite(sigma_h) && sigma_h > 0.0) aux[A_AD_SH] += (h / aux[A_AD_W]) * (sigma_h - aux[A_AD_SH]);
+    long n_hist = (long)aux[A_AD_HN];
+    for (int i = 1; i < AD_NMOM; i++) {
+        double lag = gn_lag(i);
+        long j_best = -1;
+        double d_best = GN_LAG_TOL_S;
+        for (long j = 0; j < n_hist; j++) {
+            double d = fabs(t - aux[A_AD_HIST + AD_ENTRY * j] - lag);
+            if (d <= d_best) {
+                d_best = d;
+                j_best = j;
+            }
+        }
+        if (j_best >= 0) gn_pair(aux, i, cc, ne, nn, s, A_AD_HIST + AD_ENTRY * j_best, t, h, window);
+    }
+    long newest = (long)aux[A_AD_HI] - 1;
+    if (newest < 0) newest = AD_HIST - 1;
+    if (n_hist == 0 || t - aux[A_AD_HIST + AD_ENTRY * newest] >= AD_HIST_SPACING_S) {
+        gn_store(aux, A_AD_HIST + AD_ENTRY * (long)aux[A_AD_HI], t, cc, ne, nn, s);
+        aux[A_AD_HI] = (double)(((long)aux[A_AD_HI] + 1) % AD_HIST);
+        aux[A_AD_HN] = (double)(n_hist + 1 < AD_HIST ? n_hist + 1 : AD_HIST);
+    }
+    gn_fit(aux, cfg);
+}
+
+static double gn_white_sigma(const double *aux, double sigma_h) {
+    double sw = aux[A_GW_SIG], ref = aux[A_AD_SH];
+    if (isfinite(sigma_h) && sigma_h > 0.0 && sigma_h > ref) sw *= sigma_h / ref;
+    return sw;
+}
+
 static double interp_seg(const double *ts, const double *arr, long n, double s, long i) {
     if (s <= ts[0]) return arr[0];
     if (s >= ts[n - 1]) return arr[n - 1];
@@ -205,7 +347,7 @@ static void block_clear(double *aux) {
 static void sync_block(double *x, double *P, double *aux, const double *cfg, long *cnt) {
     double hb = aux[A_PB_H];
     if (hb == 0.0) return;
-    double phi = exp(-hb / cfg[K_GM_TAU]);
+    double phi = exp(-hb / aux[A_GM_TAU]);
     x[GE] *= phi;
     x[GN] *= phi;
     double fsb = aux[A_PB_SB], fvb = aux[A_PB_VB];
@@ -235,7 +377,7 @@ static void sync_block(double *x, double *P, double *aux, const double *cfg, lon
     PIJ(P, BA, V) += aux[A_QB_VB];
     PIJ(P, BA, BA) += aux[A_QB_BB];
     PIJ(P, KO, KO) += cfg[K_Q_KO] * hb;
-    double gm = cfg[K_GM_SIGMA];
+    double gm = aux[A_GM_SIG];
     PIJ(P, GE, GE) += gm * gm * (1.0 - phi * phi);
     PIJ(P, GN, GN) += gm * gm * (1.0 - phi * phi);
     PIJ(P, BG, BG) += cfg[K_Q_BG] * hb;
@@ -547,12 +689,13 @@ static long step_init(double *x, double *P, double *aux, long *cnt, double *mem,
         sync_block(x, P, aux, cfg, cnt); /* the kept error states' covariance, up to the old state time */
     } else {
         block_clear(aux);
+        gn_reset(aux, cfg);
         memset(x, 0, sizeof(double) * NX);
         memset(P, 0, sizeof(double) * NX * NX);
         PIJ(P, BA, BA) = sq(cfg[K_INIT_SIGMA_BA]);
         PIJ(P, KO, KO) = sq(cfg[K_INIT_SIGMA_KO]);
-        PIJ(P, GE, GE) = sq(cfg[K_GM_SIGMA]);
-        PIJ(P, GN, GN) = sq(cfg[K_GM_SIGMA]);
+        PIJ(P, GE, GE) = sq(aux[A_GM_SIG]);
+        PIJ(P, GN, GN) = sq(aux[A_GM_SIG]);
         PIJ(P, BG, BG) = sq(cfg[K_INIT_SIGMA_BG]);
         PIJ(P, MY, MY) = sq(cfg[K_INIT_SIGMA_MY]);
         PIJ(P, SF, SF) = sq(cfg[K_INIT_SIGMA_SF]);
@@ -872,7 +1015,8 @@ static long step_gps(double *x, double *P, double *aux, long *cnt, const double 
     }
     sync_block(x, P, aux, cfg, cnt);
     if (t - aux[A_T_GPS] > cfg[K_GPS_TIMEOUT] && aux[A_GPS_REJ] == 0.0) {
-        double gm = cfg[K_GM_SIGMA];
+        gn_restart(aux);
+        double gm = aux[A_GM_SIG];
         for (int i = 0; i < NX; i++) {
             PIJ(P, GE, i) = 0.0;
             PIJ(P, i, GE) = 0.0;
@@ -898,11 +1042,13 @@ static long step_gps(double *x, double *P, double *aux, long *cnt, const double 
     double he = e + x[GE], hn = n + x[GN];
     y[0] = east - he;
     y[1] = north - hn;
-    double sw = cfg[K_GPS_WHITE];
-    if (isfinite(sigma_h) && sigma_h > 0.0 && sigma_h > cfg[K_GPS_NOMINAL_SIGMA_H])
-        sw *= sigma_h / cfg[K_GPS_NOMINAL_SIGMA_H];
     double tnorm = sqrt(de * de + dn * dn);
     double ue = de / tnorm, un = dn / tnorm;
+    /* the fix's distance from the line into the GNSS error statistics (sfa.gnss_noise) */
+    double n_e, n_n, s_foot;
+    double c_x = cross_track(ts, te, tn, nv, x[S] - x[V] * dl, east, north, &n_e, &n_n, &s_foot);
+    gn_observe(aux, cfg, t, c_x, n_e, n_n, s_foot, sigma_h);
+    double sw = gn_white_sigma(aux, sigma_h);
     double sl2 = sq(cfg[K_TRACK_LAT]);
     R[0] = sw * sw + sl2 * un * un;
     R[3] = sw * sw + sl2 * ue * ue;
