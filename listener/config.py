@@ -98,6 +98,9 @@ class LogConfig:
 class FilterSelection:
     """Which filter preset the listener runs (see ``sfa.presets``)."""
 
+    #: preset family: "model-matched" (the simulator's sensor settings) or "datasheet" (sensor classes
+    #: from datasheets, a digitised map's errors, the adaptive GNSS model; docs/filter.md)
+    presets: str = "model-matched"
     imu: str = "mems-train"  #: IMU preset name
     odometer: str = "wheel-odometer"  #: odometer preset name
     gps: str = "standalone"  #: GNSS preset name
@@ -214,6 +217,8 @@ def _validate(cfg: ListenerConfig) -> None:
     need(cfg.log.metrics_interval_s > 0.0, "log.metrics_interval_s", "must be > 0")
     need(cfg.log.warning_interval_s >= 0.0, "log.warning_interval_s", "must be >= 0")
     need(cfg.watchdog_max_lag_s > 0.0, "watchdog_max_lag_s", "must be > 0")
+    need(cfg.filter.presets in ("model-matched", "datasheet"), "filter.presets",
+         f"must be model-matched or datasheet, got {cfg.filter.presets!r}")
     need(16 <= cfg.auth.tag_bytes <= 32, "auth.tag_bytes", "must be in 16..32")
     need(cfg.auth.window >= 1, "auth.window", "must be >= 1")
     need(not cfg.auth.enabled or bool(cfg.auth.key_file), "auth.key_file", "required when auth.enabled")

@@ -97,10 +97,11 @@ class Pipeline:
         self.cfg = config or ListenerConfig()
         if filt is None:
             from sfa.filter import TrackFilter
-            from sfa.presets import filter_config_for
+            from sfa.presets import config_for
 
             sel = self.cfg.filter
-            filt = TrackFilter(track, filter_config_for(imu=sel.imu, odometer=sel.odometer, gps=sel.gps))
+            cfg = config_for(sel.presets, imu=sel.imu, odometer=sel.odometer, gps=sel.gps)
+            filt = TrackFilter(track, cfg)
         self.filter = filt
         self.track = track
         inp = self.cfg.input

@@ -252,3 +252,21 @@ def filter_config_for(
         track_lateral_sigma_m=min(0.3, 3.0 * gps_spec.white_sigma_m),
     )
     return cfg.replace(**overrides) if overrides else cfg
+
+
+#: the preset families a listener or replay can select (``[filter] presets``)
+PRESET_FAMILIES = ("model-matched", "datasheet")
+
+
+def config_for(
+    presets: str = "model-matched", imu: str = "mems-train", odometer: str = "wheel-odometer",
+    gps: str = "standalone", **overrides: object
+) -> FilterConfig:
+    """The FilterConfig of a preset family (``PRESET_FAMILIES``): ``filter_config_for`` (model-matched,
+    the simulator's own sensor settings) or ``datasheet_config_for`` (sensor classes from datasheets, a
+    digitised map's errors, the adaptive GNSS error model)."""
+    if presets == "model-matched":
+        return filter_config_for(imu, odometer, gps, **overrides)
+    if presets == "datasheet":
+        return datasheet_config_for(imu, odometer, gps, **overrides)
+    raise FilterConfigError(f"unknown preset family {presets!r} (known: {', '.join(PRESET_FAMILIES)})")

@@ -308,3 +308,17 @@ def test_roll_cos_equals_the_angle_difference_it_replaces():
     # no force at all, NaN: no compensation
     assert K.roll_cos(0.0, 0.0, 0.0, 0.0) == 1.0
     assert K.roll_cos(1.0, -g, math.nan, -g) == 1.0
+
+
+def test_preset_families_select_the_builders():
+    """``[filter] presets`` picks the builder; an unknown family is one error naming the value."""
+    from listener.config import ConfigError, config_from_dict
+    from sfa.presets import config_for, datasheet_config_for
+
+    assert config_for("model-matched", gps="rtk") == filter_config_for(gps="rtk")
+    assert config_for("datasheet", gps="rtk", use_gyro=True) == datasheet_config_for(gps="rtk", use_gyro=True)
+    with pytest.raises(FilterConfigError, match="unknown preset family 'simulator'"):
+        config_for("simulator")
+    assert config_from_dict({"filter": {"presets": "datasheet"}}).filter.presets == "datasheet"
+    with pytest.raises(ConfigError, match="filter.presets: must be model-matched or datasheet, got 'x'"):
+        config_from_dict({"filter": {"presets": "x"}})

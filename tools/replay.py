@@ -88,12 +88,12 @@ class ReplayResult:
 def build_pipeline(track, options: ReplayOptions) -> Pipeline:
     """The listener pipeline for ``options`` (the filter built with any sweep overrides)."""
     from sfa.filter import TrackFilter
-    from sfa.presets import filter_config_for
+    from sfa.presets import config_for
 
     sel = options.config.filter
     try:
-        cfg = filter_config_for(
-            imu=sel.imu, odometer=sel.odometer, gps=sel.gps, **dict(options.filter_overrides)
+        cfg = config_for(
+            sel.presets, imu=sel.imu, odometer=sel.odometer, gps=sel.gps, **dict(options.filter_overrides)
         )
     except (KeyError, TypeError) as exc:
         raise ToolError(f"filter configuration: {exc}") from exc
