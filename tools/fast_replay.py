@@ -119,7 +119,52 @@ def try_fast_replay(capture_path, track, options=None):
         return None, FastReplayInfo(False, f"capture: {got}")
     if got.res[R_DATAGRAMS] == 0:
         return None, FastReplayInfo(False, "no datagram to the listener port")
-    return _replay_ingested(got, track, options, ingest_s)
+    result, info = _replay_ingested(got, track, options, ingest_s)
+    if result is not None:
+        why = vital_reason(got, result, options)
+        if why:
+            return None, _info(False, why, info.exact_prefix)
+    return result, info
+
+
+def vital_reason(got, result, options) -> str:
+    """Why the listener's vital supervision (listener.vital, run by the exact pipeline on its timer)
+    could have changed what was sent, in which case the exact replay is needed; "" when it could not.
+
+    Conservative: the compiled path has no timer and no decay state, so it is used only when no output
+    was LOST, no run of non-NOMINAL outputs lasted the fault budget, no DEGRADED output was sent under
+    ``vital.standard_output = "nominal"`` or the extended output, and no motion sensor (nor, with the
+    extended output, GNSS) fell silent for longer than its time-out."""
+    cfg = options.config
+    v = cfg.vital
+    if not v.enabled:
+        return ""
+    status = result.estimates["status"]
+    if status.size == 0:
+        return ""
+    if np.any(status == 3):
+        return "vital supervision: a LOST estimate (the decay state runs in the exact replay)"
+    degraded = status == 2
+    if np.any(degraded) and (v.standard_output == "nominal" or cfg.link.extended):
+        return "vital supervision: DEGRADED estimates with the extended output or standard_output = nominal"
+    if np.any(degraded):
+        epoch = result.estimates["epoch"]
+        edges = np.flatnonzero(np.diff(np.concatenate(([0], degraded.astype(np.int8), [0]))))
+        for a, b in zip(edges[::2].tolist(), edges[1::2].tolist(), strict=True):
+            if epoch[min(b, epoch.size - 1)] - epoch[a] >= v.fault_budget_s:
+                return "vital supervision: DEGRADED as long as vital.fault_budget_s (decay may latch)"
+    from sfa.presets import filter_config_for
+
+    sel = cfg.filter
+    fc = filter_config_for(imu=sel.imu, odometer=sel.odometer, gps=sel.gps, **dict(options.filter_overrides))
+    silent = [(1, fc.imu_timeout_s), (2, fc.odo_timeout_s)]
+    if cfg.link.extended:
+        silent.append((3, fc.gps_timeout_s))
+    for kind, timeout in silent:
+        t = got.m_time[got.kind == kind]
+        if t.size > 1 and float(np.max(np.diff(t))) > timeout / cfg.clock.rate:
+            return f"vital supervision: a sensor (type {kind}) silent longer than its time-out"
+    return ""
 
 
 def _options_reason(options) -> str:
