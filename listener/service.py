@@ -267,11 +267,12 @@ class ListenerService:
                 self.notifier.status(status)
 
     def filter_progress(self) -> bool:
-        """The filter makes progress: it processed a measurement since the last call, or nothing new
-        was received that it could have processed (idle is not a failure: silent sensors are the
-        vital supervision's business, not the service manager's)."""
-        c = self.pipeline.counters
-        processed, received = c["processed"], c["received"] - c["rejected"]
+        """The filter makes progress: it processed a measurement since the last call, or no new valid
+        measurement arrived that it could have processed (idle is not a failure: silent sensors are
+        the vital supervision's business, not the service manager's)."""
+        by_type = self.pipeline.by_type  # valid measurements (STROBE and STOP are not the filter's)
+        processed = self.pipeline.counters["processed"]
+        received = by_type["imu"] + by_type["odometer"] + by_type["gps"] + by_type["ground_truth"]
         ok = processed != self._wd_processed or received == self._wd_received or self._wd_processed < 0
         self._wd_processed, self._wd_received = processed, received
         return ok
@@ -323,6 +324,8 @@ class ListenerService:
         self._loop = loop
         self._done = asyncio.Event()
         inp = self.cfg.input
+        if self.cfg.metrics.port:  # first: a port in use fails the start before any socket is open
+            self.metrics_server = _start_metrics(self)
         sock = self._sock = self._open_input_socket()
         self.bound_port = sock.getsockname()[1]
         if inp.reader == "protocol":
@@ -344,11 +347,6 @@ class ListenerService:
         if inp.reader == "batched":  # after the warm-up, as the protocol reader's datagrams wait for it
             loop.add_reader(sock.fileno(), self._on_readable)
             self._reading = True
-        if self.cfg.metrics.port:
-            from listener.metrics import MetricsServer
-
-            self.metrics_server = MetricsServer(self, self.cfg.metrics)
-            self.metrics_server.start()
         tasks = [asyncio.ensure_future(self._periodic_metrics())]
         wd = watchdog_interval_s()
         if wd is not None:
@@ -412,6 +410,27 @@ def _event_level(kind: str, ev: dict[str, Any]) -> str:
     if kind == "link_state":
         return {"down": "error", "degraded": "warning"}.get(ev.get("state"), "info")
     return _EVENT_LEVELS.get(kind, "info")
+
+
+def _start_metrics(service: ListenerService):
+    """The Prometheus endpoint of ``[metrics]``; ConfigError (one line) when it cannot be served."""
+    from listener.errors import ConfigError
+
+    m = service.cfg.metrics
+    try:
+        from listener.metrics import MetricsServer
+    except ImportError as exc:
+        raise ConfigError(
+            f"metrics.port={m.port}: the Prometheus endpoint needs prometheus_client ({exc.name} missing: "
+            "pip install prometheus_client)"
+        ) from exc
+    server = MetricsServer(service, m)
+    try:
+        server.start()
+    except OSError as exc:
+        why = exc.strerror or exc
+        raise ConfigError(f"metrics.port={m.port}: cannot serve on {m.bind}:{m.port}: {why}") from exc
+    return server
 
 
 def run_service(service: ListenerService, warm_up: bool = True) -> int:
