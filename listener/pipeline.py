@@ -68,6 +68,9 @@ _MODULE_OF_TYPE = {t: name for name, t in MODULES.items()}
 _LOST = 3  #: FilterStatus.LOST (also what the extended output says while decay is latched)
 _DEGRADED = 2
 _EVENTS_KEPT = 1000  #: events queued for the log at most (the service takes them after every call)
+_TIMEOUT_REASON = {"imu": "imu_timeout", "odometer": "odometer_timeout", "gnss": "gnss_timeout"}
+_RECHECK_STEP_S = 0.002  #: re-check period of a time-out the filter does not show yet [s]
+_RECHECK_FOR_S = 0.05  #: how long past the deadline re-checks go on [s]
 
 
 @dataclass(frozen=True, slots=True)
@@ -148,6 +151,7 @@ class Pipeline:
         }
         self._module_streams: dict[str, set] = {name: set() for name in MODULES}
         self._timed_out: set[str] = set()  # modules whose time-out the timer has evaluated since heard
+        self._recheck_at: float | None = None  # a time-out due but not yet seen by the filter: look again
         self._init_now: float | None = None  # listener time of the last (re)initialisation
         self._newest_epoch_arrival = 0.0  # listener time the newest epoch arrived
         self._status: int | None = None  # last status observed (outputs and timer), FilterStatus value
@@ -357,6 +361,8 @@ class Pipeline:
             return best
         rate = self.cfg.clock.rate
         margin = self.cfg.vital.timeout_margin_s
+        if self._recheck_at is not None and (best is None or self._recheck_at < best):
+            best = self._recheck_at
         for name, mod in self.modules.items():
             if name in self._timed_out:
                 continue
@@ -370,17 +376,28 @@ class Pipeline:
         """The timer: evaluate the filter's status at the sensor time of ``now`` (so a silent sensor is
         timed out without waiting for another measurement) and act on a change."""
         self.vital_counters["timer_checks"] += 1
+        self._recheck_at = None
+        t = self._sensor_now(now)
+        if t is None or not self.filter.initialised:
+            self._timed_out.update(self.modules)  # nothing to evaluate: until each is heard again
+            self._note(self.vital.observe(self._status or 0, self._reasons, now), now)
+            return []
+        est = self.filter.estimate(at_s=t)
         if self._init_now is not None:
             rate, margin = self.cfg.clock.rate, self.cfg.vital.timeout_margin_s
             for name, mod in self.modules.items():
                 ref = self._init_now if mod.last_heard is None else max(mod.last_heard, self._init_now)
-                if now >= ref + self._timeouts[name] / rate + margin:
+                due = ref + self._timeouts[name] / rate + margin
+                if now < due or name in self._timed_out:
+                    continue
+                if _TIMEOUT_REASON[name] in est.reasons or now >= due + _RECHECK_FOR_S:
                     self._timed_out.add(name)
-        t = self._sensor_now(now)
-        if t is None or not self.filter.initialised:
-            self._note(self.vital.observe(self._status or 0, self._reasons, now), now)
-            return []
-        est = self.filter.estimate(at_s=t)
+                else:
+                    # the sensor-time mapping (STROBE clock fit, still settling) puts now a little
+                    # before the filter's own deadline: look again shortly rather than wait for the
+                    # next measurement
+                    self.vital_counters["timer_rechecks"] += 1
+                    self._recheck_at = now + _RECHECK_STEP_S
         was_latched = self.vital.latched
         changed = self._observe(est, now, "timer")
         if not (changed or self.vital.latched != was_latched) or self.last_estimate is None:

@@ -248,13 +248,14 @@ class ListenerService:
             self._done.set()
 
     def status_line(self) -> str:
-        m = self.pipeline.metrics()
+        m = self.metrics()
         est = self.pipeline.last_estimate
         pos = "-" if est is None else f"s={est.arc_length_m:.1f}m v={est.speed_mps:.1f}m/s"
         decay = self.pipeline.vital
         state = f"DECAY({decay.phase.value}) " if decay.latched else ""
+        status = m.get("vital", {}).get("status") or m["filter"]["status"] or "waiting"  # timer-aware
         return (
-            f"{state}{m['filter']['status'] or 'waiting'} {pos} line={m['filter']['line_id']} "
+            f"{state}{status} {pos} line={m['filter']['line_id']} "
             f"rx={m['input']['received']} rej={m['input'].get('rejected', 0)} "
             f"out={m['link']['outputs']} link={m['link']['state']}"
         )

@@ -129,6 +129,9 @@ def test_standard_output_stops_when_lost_and_the_link_change_is_an_event(track):
     m = pipe.metrics(T0 + 30.0)
     assert m["vital"]["decay"]["latched"] and m["link"]["withheld"] > 0
     assert m["vital"]["modules"]["imu"]["timed_out"]
+    # the metrics say so (issue 19: they kept saying "nominal" for 12 s after the sensors died); the
+    # filter section keeps the status of the last estimate produced by a measurement
+    assert m["vital"]["status"] == "lost" and "no_motion_sensor" in m["vital"]["reasons"]
 
 
 def test_clean_run_has_no_timer_work(track):

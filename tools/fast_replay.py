@@ -133,8 +133,8 @@ def vital_reason(got, result, options) -> str:
 
     Conservative: the compiled path has no timer and no decay state, so it is used only when no output
     was LOST, no run of non-NOMINAL outputs lasted the fault budget, no DEGRADED output was sent under
-    ``vital.standard_output = "nominal"`` or the extended output, and no motion sensor (nor, with the
-    extended output, GNSS) fell silent for longer than its time-out."""
+    ``vital.standard_output = "nominal"`` or the extended output, and no sensor fell silent for longer
+    than its time-out (the listener's timer would have reported it: status, metrics)."""
     cfg = options.config
     v = cfg.vital
     if not v.enabled:
@@ -157,9 +157,7 @@ def vital_reason(got, result, options) -> str:
 
     sel = cfg.filter
     fc = filter_config_for(imu=sel.imu, odometer=sel.odometer, gps=sel.gps, **dict(options.filter_overrides))
-    silent = [(1, fc.imu_timeout_s), (2, fc.odo_timeout_s)]
-    if cfg.link.extended:
-        silent.append((3, fc.gps_timeout_s))
+    silent = [(1, fc.imu_timeout_s), (2, fc.odo_timeout_s), (3, fc.gps_timeout_s)]
     for kind, timeout in silent:
         t = got.m_time[got.kind == kind]
         if t.size > 1 and float(np.max(np.diff(t))) > timeout / cfg.clock.rate:
