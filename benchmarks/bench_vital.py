@@ -26,14 +26,18 @@ def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--runs", type=int, default=20, help="silent windows per sensor kind")
     ap.add_argument("--out", help="write the rows and the summary as JSON")
+    ap.add_argument("--work", help="keep the track, the listener's log here (default: a temporary directory)")
     args = ap.parse_args(argv)
-    with tempfile.TemporaryDirectory() as tmp:
-        res = run_live(list(KINDS), args.runs, Path(tmp))
+    if args.work:
+        res = run_live(list(KINDS), args.runs, Path(args.work))
+    else:
+        with tempfile.TemporaryDirectory() as tmp:
+            res = run_live(list(KINDS), args.runs, Path(tmp))
     print(table(res["summary"]))
     ok = True
     for kind, e in res["summary"].items():
         target = 0.6 if kind == "imu" else e["timeout_s"] + 0.1
-        met = e.get("obcu_s_p99", float("inf")) <= target and not e["obcu_s_missing"]
+        met = e.get("obcu_s_p99", float("inf")) <= target and not e.get("obcu_s_missing", 1)
         ok &= met
         print(f"{kind}: OBCU p99 {e.get('obcu_s_p99', float('nan')):.3f} s, target {target:.1f} s: "
               f"{'met' if met else 'MISSED'}")

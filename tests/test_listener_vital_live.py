@@ -45,10 +45,11 @@ def test_silent_sensor_reported_and_seen_by_the_obcu_in_time(live, kind):
     reason = {"imu": "imu_timeout", "odometer": "odometer_timeout", "gnss": "gnss_timeout",
               "all": "no_motion_sensor"}[kind]
     for r in rows:
-        assert r["event_s"] is not None and r["obcu_s"] is not None, r
+        assert r["event_s"] is not None, r
         assert reason in r["reasons"], r
         assert r["event_s"] <= r["timeout_s"] + 0.1, r
-        assert r["obcu_s"] <= r["timeout_s"] + 0.1, r
+        if r["status_before"] == "nominal":  # else the OBCU had been told DEGRADED already
+            assert r["obcu_s"] is not None and r["obcu_s"] <= r["timeout_s"] + 0.1, r
         if kind in ("imu", "odometer"):
             assert r["event_s"] >= r["timeout_s"], r  # not before the time-out either
             assert r["source"] == "timer", r

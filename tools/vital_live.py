@@ -57,6 +57,7 @@ class Window:
     event: float | None = None  #: wall time of the listener's status line
     event_record: dict[str, Any] = field(default_factory=dict)
     obcu: float | None = None  #: wall time the OBCU received the status
+    status_before: str | None = None  #: the listener's status when the window began (from its log)
 
     def row(self, timeouts: dict[str, float]) -> dict[str, Any]:
         return {
@@ -64,6 +65,8 @@ class Window:
             "timeout_s": timeouts[self.kind],
             "event_s": None if self.event is None or self.last is None else self.event - self.last,
             "obcu_s": None if self.obcu is None or self.last is None else self.obcu - self.last,
+            "status_before": self.status_before,
+            "event": self.event_record.get("event"),
             "reasons": self.event_record.get("reasons"),
             "source": self.event_record.get("source"),
             "since_heard_s": self.event_record.get("since_heard_s"),
@@ -281,7 +284,8 @@ def evaluate(windows: list[Window], records: list[dict], received: list[tuple[fl
     fc = filter_config_for(imu="mems-train", odometer="wheel-odometer", gps="standalone")
     timeouts = {"imu": fc.imu_timeout_s, "odometer": fc.odo_timeout_s, "gnss": fc.gps_timeout_s,
                 "all": max(fc.imu_timeout_s, fc.odo_timeout_s)}
-    status_lines = [r for r in records if r.get("event") == "status"]
+    # the change is a status line, or a reasons line when the status was already that bad
+    status_lines = [r for r in records if r.get("event") in ("status", "reasons")]
     rx_t = np.array([t for t, _ in received]) if received else np.zeros(0)
     rx_s = np.array([s for _, s in received]) if received else np.zeros(0, dtype=int)
     for w in windows:
@@ -289,24 +293,32 @@ def evaluate(windows: list[Window], records: list[dict], received: list[tuple[fl
             continue
         code, reason = _EXPECT[w.kind]
         name = {2: "degraded", 3: "lost"}[code]
+        before = [r for r in status_lines if r["ts"] <= w.last]
+        w.status_before = before[-1]["status"] if before else None
         for r in status_lines:
             if r["ts"] > w.last and r["status"] == name and reason in r.get("reasons", []):
                 w.event, w.event_record = r["ts"], r
                 break
-        hit = np.flatnonzero((rx_t > w.last) & (rx_s == code))
-        if hit.size:
+        # the OBCU's change: the first STATUS of that code after the last NOMINAL one it got since then
+        after = (rx_t > w.last)
+        hit = np.flatnonzero(after & (rx_s == code))
+        if hit.size and w.status_before == "nominal":
             w.obcu = float(rx_t[hit[0]])
     rows = [w.row(timeouts) for w in windows if w.last is not None]
     return {"rows": rows, "summary": summarise(rows), "timeouts_s": timeouts}
 
 
 def summarise(rows: list[dict[str, Any]]) -> dict[str, dict[str, Any]]:
+    """Per kind: p50/p99/max of the windows that began NOMINAL (a window that began DEGRADED for another
+    reason has no status change to see: counted in ``not_nominal_at_onset``)."""
     out = {}
     for kind in KINDS:
-        mine = [r for r in rows if r["kind"] == kind]
-        if not mine:
+        every = [r for r in rows if r["kind"] == kind]
+        if not every:
             continue
-        entry: dict[str, Any] = {"runs": len(mine), "timeout_s": mine[0]["timeout_s"]}
+        mine = [r for r in every if r["status_before"] == "nominal"]
+        entry: dict[str, Any] = {"runs": len(mine), "timeout_s": every[0]["timeout_s"],
+                                 "not_nominal_at_onset": len(every) - len(mine)}
         for key in ("event_s", "obcu_s"):
             vals = np.array([r[key] for r in mine if r[key] is not None], dtype=float)
             entry[f"{key}_missing"] = len(mine) - vals.size
@@ -321,8 +333,8 @@ def summarise(rows: list[dict[str, Any]]) -> dict[str, dict[str, Any]]:
 def table(summary: dict[str, dict[str, Any]]) -> str:
     lines = [
         "| silent | time-out | target | last datagram -> status line p50 / p99 / max | "
-        "-> OBCU sees it p50 / p99 / max | runs |",
-        "|---|---|---|---|---|---|",
+        "-> OBCU sees it p50 / p99 / max | runs | not NOMINAL at onset |",
+        "|---|---|---|---|---|---|---|",
     ]
     for kind, e in summary.items():
         target = 0.6 if kind == "imu" else e["timeout_s"] + 0.1
@@ -335,7 +347,7 @@ def table(summary: dict[str, dict[str, Any]]) -> str:
 
         lines.append(
             f"| {kind} | {e['timeout_s']:.1f} s | {target:.1f} s | {fmt('event_s')} | {fmt('obcu_s')} "
-            f"| {e['runs']} |"
+            f"| {e['runs']} | {e['not_nominal_at_onset']} |"
         )
     return "\n".join(lines)
 
