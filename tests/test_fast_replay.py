@@ -160,6 +160,28 @@ def test_reinitialisation_and_a_time_jump_go_through_trackfilter(sim, tmp_path):
     assert on.metrics["vital"]["decay"]["latched"]  # (this capture latches first on a long slip)
 
 
+@pytest.mark.parametrize(("stype", "seconds"), [(3, 6.0), (1, 1.0)])
+def test_a_single_silent_sensor_keeps_the_fast_path(sim, tmp_path, stype, seconds):
+    """GNSS silent for 6 s (past its 3 s time-out), or the IMU for 1 s with the odometer going on: the
+    listener's timer reports DEGRADED between measurements, but with the standard output and the
+    default decay reasons nothing sent changes, so the fast path is used and equals the exact replay."""
+    dgrams = list(sim["dgrams"])
+    t0 = dgrams[0][0]
+    cut = [d for d in dgrams if not (d[2][0] == stype and 30.0 <= d[0] - t0 < 30.0 + seconds)]
+    cap = tmp_path / f"silent-{stype}.pcap"
+    write_capture(cap, _resequence(cut))  # a sensor that stops sending, not lost datagrams
+    exact = replay_capture(cap, sim["track"], ReplayOptions())
+    fast, info = try_fast_replay(cap, sim["track"], ReplayOptions())
+    assert info.used, info.reason
+    assert_same(exact, fast)
+    vital = exact.metrics["vital"]
+    base = replay_capture(sim["cap"], sim["track"], ReplayOptions()).metrics["vital"]
+    assert vital["counters"]["timer_checks"] > base["counters"]["timer_checks"]  # it ran for the silence
+    # decay only at the capture's end: every sensor stops some 0.5 s before the simulator's STOP
+    last_sensor = max(t for t, _, p in cut if p[0] in (1, 2, 3))
+    assert not vital["decay"]["latched"] or vital["decay"]["entered_at"] > last_sensor
+
+
 def test_future_epochs_are_rejected_identically(sim, tmp_path):
     """Epochs far ahead of the STROBE clock (e.g. a flipped exponent bit) are rejected as epoch_future by
     the listener; the fast path drops the same measurements from its packed rows (updates, estimates

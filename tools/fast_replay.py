@@ -127,14 +127,20 @@ def try_fast_replay(capture_path, track, options=None):
     return result, info
 
 
+_SLACK_S = 0.01  #: vital_reason errs this much towards the exact replay (the timer's margin is 1 ms) [s]
+
+
 def vital_reason(got, result, options) -> str:
     """Why the listener's vital supervision (listener.vital, run by the exact pipeline on its timer)
     could have changed what was sent, in which case the exact replay is needed; "" when it could not.
 
-    Conservative: the compiled path has no timer and no decay state, so it is used only when no output
-    was LOST, no run of non-NOMINAL outputs lasted the fault budget, no DEGRADED output was sent under
-    ``vital.standard_output = "nominal"`` or the extended output, and no sensor fell silent for longer
-    than its time-out (the listener's timer would have reported it: status, metrics)."""
+    The compiled path has no timer and no decay state, so it is used only when none of these happened:
+    a LOST output; a run of non-NOMINAL outputs as long as the fault budget; a DEGRADED output under
+    the extended output or ``vital.standard_output = "nominal"`` (the timer would announce or withhold
+    it); with those, any sensor silent beyond its time-out; otherwise IMU and odometer both silent
+    beyond their time-outs at the same time between two datagrams (LOST on the timer, which latches
+    decay), or a sensor whose time-out is a decay reason silent for the fault budget. A silence at the
+    very end (after the last datagram of a module, to the end of the capture) changes nothing sent."""
     cfg = options.config
     v = cfg.vital
     if not v.enabled:
@@ -145,7 +151,8 @@ def vital_reason(got, result, options) -> str:
     if np.any(status == 3):
         return "vital supervision: a LOST estimate (the decay state runs in the exact replay)"
     degraded = status == 2
-    if np.any(degraded) and (v.standard_output == "nominal" or cfg.link.extended):
+    strict = v.standard_output == "nominal" or cfg.link.extended
+    if np.any(degraded) and strict:
         return "vital supervision: DEGRADED estimates with the extended output or standard_output = nominal"
     if np.any(degraded):
         epoch = result.estimates["epoch"]
@@ -153,15 +160,37 @@ def vital_reason(got, result, options) -> str:
         for a, b in zip(edges[::2].tolist(), edges[1::2].tolist(), strict=True):
             if epoch[min(b, epoch.size - 1)] - epoch[a] >= v.fault_budget_s:
                 return "vital supervision: DEGRADED as long as vital.fault_budget_s (decay may latch)"
+    from listener.config import decay_reasons
     from sfa.presets import filter_config_for
 
     sel = cfg.filter
     fc = filter_config_for(imu=sel.imu, odometer=sel.odometer, gps=sel.gps, **dict(options.filter_overrides))
-    silent = [(1, fc.imu_timeout_s), (2, fc.odo_timeout_s), (3, fc.gps_timeout_s)]
-    for kind, timeout in silent:
+    rate = cfg.clock.rate
+    timeouts = {1: fc.imu_timeout_s / rate, 2: fc.odo_timeout_s / rate, 3: fc.gps_timeout_s / rate}
+    reason_of = {1: "imu_timeout", 2: "odometer_timeout", 3: "gnss_timeout"}
+    decay = set(decay_reasons(v))
+    silent: dict[int, np.ndarray] = {}  # per SENSOR_TYPE: (gap start + time-out, next arrival) rows
+    for kind in (1, 2, 3):
         t = got.m_time[got.kind == kind]
-        if t.size > 1 and float(np.max(np.diff(t))) > timeout / cfg.clock.rate:
+        if t.size < 2:
+            silent[kind] = np.zeros((0, 2))
+            continue
+        gaps = np.diff(t)
+        over = np.flatnonzero(gaps > timeouts[kind])
+        silent[kind] = np.stack((t[over] + timeouts[kind], t[over + 1]), axis=1)
+        if over.size and strict:
             return f"vital supervision: a sensor (type {kind}) silent longer than its time-out"
+        longest = float(gaps[over].max()) if over.size else 0.0
+        if reason_of[kind] in decay and longest >= timeouts[kind] + v.fault_budget_s - _SLACK_S:
+            return f"vital supervision: a sensor (type {kind}) silent for the fault budget"
+    a, b = silent[1], silent[2]
+    if a.size and b.size:
+        lo = np.maximum(a[:, None, 0], b[None, :, 0]) if a.shape[0] * b.shape[0] <= 4_000_000 else None
+        if lo is None:
+            return "vital supervision: too many IMU and odometer gaps to check"
+        hi = np.minimum(a[:, None, 1], b[None, :, 1])
+        if np.any(lo < hi + _SLACK_S):
+            return "vital supervision: IMU and odometer silent together beyond their time-outs (LOST)"
     return ""
 
 
