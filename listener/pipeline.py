@@ -152,6 +152,7 @@ class Pipeline:
         self._module_streams: dict[str, set] = {name: set() for name in MODULES}
         self._timed_out: set[str] = set()  # modules whose time-out the timer has evaluated since heard
         self._recheck_at: float | None = None  # a time-out due but not yet seen by the filter: look again
+        self._rechecking: set[str] = set()  # the modules that re-check is for
         self._init_now: float | None = None  # listener time of the last (re)initialisation
         self._newest_epoch_arrival = 0.0  # listener time the newest epoch arrived
         self._status: int | None = None  # last status observed (outputs and timer), FilterStatus value
@@ -187,6 +188,7 @@ class Pipeline:
         if module is not None:
             self.modules[module].heard(now)
             self._timed_out.discard(module)
+            self._rechecking.discard(module)
             streams = self._module_streams[module]
             if key not in streams and len(streams) < 16:
                 streams.add(key)
@@ -364,7 +366,7 @@ class Pipeline:
         if self._recheck_at is not None and (best is None or self._recheck_at < best):
             best = self._recheck_at
         for name, mod in self.modules.items():
-            if name in self._timed_out:
+            if name in self._timed_out or name in self._rechecking:  # (a re-check: _recheck_at)
                 continue
             ref = init if mod.last_heard is None or mod.last_heard < init else mod.last_heard
             due = ref + self._timeouts[name] / rate + margin
@@ -377,9 +379,11 @@ class Pipeline:
         timed out without waiting for another measurement) and act on a change."""
         self.vital_counters["timer_checks"] += 1
         self._recheck_at = None
+        self._rechecking.clear()
         t = self._sensor_now(now)
         if t is None or not self.filter.initialised:
             self._timed_out.update(self.modules)  # nothing to evaluate: until each is heard again
+            self._recheck_at = None
             self._note(self.vital.observe(self._status or 0, self._reasons, now), now)
             return []
         est = self.filter.estimate(at_s=t)
@@ -398,6 +402,7 @@ class Pipeline:
                     # next measurement
                     self.vital_counters["timer_rechecks"] += 1
                     self._recheck_at = now + _RECHECK_STEP_S
+                    self._rechecking.add(name)
         was_latched = self.vital.latched
         changed = self._observe(est, now, "timer")
         if not (changed or self.vital.latched != was_latched) or self.last_estimate is None:

@@ -281,3 +281,28 @@ def test_module_health_rate_and_bounded_memory():
 def test_bad_vital_configuration_names_the_key(key, value):
     with pytest.raises(ConfigError, match=f"vital.{key}"):
         config_from_dict({"vital": {key: value}})
+
+
+def test_timer_rechecks_a_time_out_the_filter_does_not_show_yet(track):
+    """IMU epochs 30 ms ahead of the STROBE clock's mapping of their arrival: at the arrival-based
+    deadline the filter's own time-out is 30 ms away. The timer looks again every 2 ms (bounded) and
+    reports it then, instead of spinning on the same deadline or waiting for the next measurement."""
+    import struct
+
+    dgrams = []
+    for t, addr, p in _no_stop(_datagrams(_run(track, 30.0), start_seq=0)):
+        if p[0] == IMU:
+            f = list(struct.unpack("<BHBB7d", p))
+            f[-1] += 0.03
+            p = struct.pack("<BHBB7d", *f)
+        dgrams.append((t, addr, p))
+    cut = _drop(dgrams, (IMU,), 20.0)
+    last = _last(dgrams, IMU, 20.0)
+    pipe = Pipeline(track, ListenerConfig())
+    _, events = _drive(pipe, cut, until=T0 + 22.0)
+    ev = [e for e in _status_events(events, "degraded") if e["at"] > last and "imu_timeout" in e["reasons"]]
+    assert ev, [e for e in events if e["at"] > last]
+    delay = ev[0]["at"] - last
+    timeout = pipe._timeouts["imu"]
+    assert ev[0]["source"] == "timer" and pipe.vital_counters["timer_rechecks"] >= 5
+    assert timeout + 0.025 <= delay <= timeout + 0.04, delay
