@@ -216,3 +216,35 @@ def test_metrics_port_in_use_fails_at_start_with_one_line(tmp_path):
     assert res.returncode == 2, res.stderr
     lines = [line for line in res.stderr.strip().splitlines() if not line.startswith("{")]
     assert len(lines) == 1 and f"metrics.port={port}" in lines[0], res.stderr
+
+
+def test_sfa_listen_prefixes_priorities_when_stderr_is_the_journal(tmp_path):
+    """A real sfa listen whose stderr is the file JOURNAL_STREAM names (as systemd sets it for the
+    journal): every line carries its syslog priority, so journald can filter by it."""
+    import signal
+    import subprocess
+    import sys
+
+    log = tmp_path / "journal.log"
+    with open(log, "w") as fh:
+        st = os.fstat(fh.fileno())
+        env = {**os.environ, "JOURNAL_STREAM": f"{st.st_dev}:{st.st_ino}"}
+        proc = subprocess.Popen(
+            [sys.executable, "-m", "sfa", "listen", "--bind", "127.0.0.1", "--port", str(_free_port()),
+             "--obcu", f"127.0.0.1:{_free_port()}", "--no-warm-up"],
+            stderr=fh, stdout=subprocess.DEVNULL, env=env,
+        )
+        try:
+            end = time.monotonic() + 120
+            while '"event":"ready"' not in log.read_text():
+                assert time.monotonic() < end and proc.poll() is None, log.read_text()
+                time.sleep(0.05)
+            proc.send_signal(signal.SIGTERM)
+            assert proc.wait(timeout=30) == 0
+        finally:
+            if proc.poll() is None:
+                proc.kill()
+    lines = log.read_text().splitlines()
+    assert lines and all(line.startswith(("<6>{", "<4>{", "<3>{")) for line in lines), lines[:3]
+    events = [json.loads(line[3:])["event"] for line in lines]
+    assert "ready" in events and events[-1] == "exit"
