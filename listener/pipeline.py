@@ -461,6 +461,11 @@ class Pipeline:
             self._status = status
             self._reasons = reasons
         if self._vital_on:
+            # a module never heard is not fitted (e.g. no IMU on a car), not a sensor that failed: its
+            # time-out is not a declared fault for the decay budget (LOST still is)
+            absent = [_TIMEOUT_REASON[n] for n, m in self.modules.items() if m.count == 0]
+            if absent and any(r in reasons for r in absent):
+                reasons = tuple(r for r in reasons if r not in absent)
             self._note(self.vital.observe(status, reasons, now), now)
         return changed
 

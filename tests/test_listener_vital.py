@@ -306,3 +306,19 @@ def test_timer_rechecks_a_time_out_the_filter_does_not_show_yet(track):
     timeout = pipe._timeouts["imu"]
     assert ev[0]["source"] == "timer" and pipe.vital_counters["timer_rechecks"] >= 5
     assert timeout + 0.025 <= delay <= timeout + 0.04, delay
+
+
+def test_a_module_never_heard_is_not_fitted_not_failed(track):
+    """No IMU at all (a car with odometer and GNSS): the filter reports imu_timeout throughout, but
+    that is not a failed sensor outlasting the budget, so decay does not latch; an IMU that was heard
+    and then stopped does latch it after the budget."""
+    dgrams = _no_stop(_datagrams(_run(track, 30.0), start_seq=0))
+    cfg = ListenerConfig(vital=VitalConfig(fault_budget_s=3.0))
+    no_imu = Pipeline(track, cfg)
+    sent, events = _drive(no_imu, _drop(dgrams, (IMU,), -1.0))
+    assert "imu_timeout" in no_imu.last_estimate.reasons
+    assert not any(e["event"] == "decay_entered" for e in events) and len(sent) > 300
+    died = Pipeline(track, cfg)
+    _, events = _drive(died, _drop(dgrams, (IMU,), 10.0))
+    entered = [e for e in events if e["event"] == "decay_entered"]
+    assert entered and entered[0]["cause"] == "imu_timeout for more than 3 s"
