@@ -182,6 +182,29 @@ def test_a_single_silent_sensor_keeps_the_fast_path(sim, tmp_path, stype, second
     assert not vital["decay"]["latched"] or vital["decay"]["entered_at"] > last_sensor
 
 
+def test_vital_reason_runs_of_decay_reasons():
+    """The DEGRADED-run rule of vital_reason looks at the reasons of the rows: a long run of a reason
+    that is not a decay reason (a GNSS rejection) keeps the fast path, one of a decay reason does not,
+    and a module never heard (its time-out is not a failed sensor) does not count."""
+    from types import SimpleNamespace
+
+    from sfa.layout import R_GNSS_REJECTING, R_IMU_TIMEOUT
+    from tools.fast_replay import vital_reason
+
+    n = 200
+    epoch = 1000.0 + 0.1 * np.arange(n)  # 20 s of outputs
+    result = SimpleNamespace(estimates={"status": np.full(n, 2, dtype=np.int64), "epoch": epoch})
+    arrivals = np.arange(0.0, 20.0, 0.01)
+    got = SimpleNamespace(m_time=np.concatenate((arrivals, arrivals)),
+                          kind=np.concatenate((np.full(arrivals.size, 1), np.full(arrivals.size, 2))))
+    opts = ReplayOptions()
+    assert vital_reason(got, result, opts, np.full(n, R_GNSS_REJECTING)) == ""
+    assert "decay reason" in vital_reason(got, result, opts, np.full(n, R_IMU_TIMEOUT))
+    assert "decay reason" in vital_reason(got, result, opts, np.full(n, -1))  # not recorded: any
+    no_imu = SimpleNamespace(m_time=arrivals, kind=np.full(arrivals.size, 2))
+    assert vital_reason(no_imu, result, opts, np.full(n, R_IMU_TIMEOUT)) == ""
+
+
 def test_future_epochs_are_rejected_identically(sim, tmp_path):
     """Epochs far ahead of the STROBE clock (e.g. a flipped exponent bit) are rejected as epoch_future by
     the listener; the fast path drops the same measurements from its packed rows (updates, estimates

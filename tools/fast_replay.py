@@ -121,7 +121,7 @@ def try_fast_replay(capture_path, track, options=None):
         return None, FastReplayInfo(False, "no datagram to the listener port")
     result, info = _replay_ingested(got, track, options, ingest_s)
     if result is not None:
-        why = vital_reason(got, result, options)
+        why = vital_reason(got, result, options, result.metrics["fast_replay"].pop("reason_bits"))
         if why:
             return None, _info(False, why, info.exact_prefix)
     return result, info
@@ -130,7 +130,13 @@ def try_fast_replay(capture_path, track, options=None):
 _SLACK_S = 0.01  #: vital_reason errs this much towards the exact replay (the timer's margin is 1 ms) [s]
 
 
-def vital_reason(got, result, options) -> str:
+def _bits_of(reasons) -> int:
+    from sfa.layout import REASON_NAMES
+
+    return sum(bit for bit, name in REASON_NAMES.items() if name in reasons)
+
+
+def vital_reason(got, result, options, bits=None) -> str:
     """Why the listener's vital supervision (listener.vital, run by the exact pipeline on its timer)
     could have changed what was sent, in which case the exact replay is needed; "" when it could not.
 
@@ -154,14 +160,25 @@ def vital_reason(got, result, options) -> str:
     strict = v.standard_output == "nominal" or cfg.link.extended
     if np.any(degraded) and strict:
         return "vital supervision: DEGRADED estimates with the extended output or standard_output = nominal"
-    if np.any(degraded):
-        epoch = result.estimates["epoch"]
-        edges = np.flatnonzero(np.diff(np.concatenate(([0], degraded.astype(np.int8), [0]))))
-        for a, b in zip(edges[::2].tolist(), edges[1::2].tolist(), strict=True):
-            if epoch[min(b, epoch.size - 1)] - epoch[a] >= v.fault_budget_s:
-                return "vital supervision: DEGRADED as long as vital.fault_budget_s (decay may latch)"
     from listener.config import decay_reasons
+    from sfa.layout import REASON_NAMES
     from sfa.presets import filter_config_for
+
+    if np.any(degraded):
+        # a run of outputs carrying a decay reason (bits -1: not recorded, any) as long as the budget;
+        # the time-out of a module never heard is not one (listener.pipeline: not fitted, not failed)
+        names = set(decay_reasons(v))
+        heard = {1: "imu_timeout", 2: "odometer_timeout", 3: "gnss_timeout"}
+        for kind, name in heard.items():
+            if not np.any(got.kind == kind):
+                names.discard(name)
+        mask = sum(bit for bit, name in REASON_NAMES.items() if name in names)
+        flagged = degraded if bits is None else degraded & ((bits < 0) | ((bits & mask) != 0))
+        epoch = result.estimates["epoch"]
+        edges = np.flatnonzero(np.diff(np.concatenate(([0], flagged.astype(np.int8), [0]))))
+        for a, b in zip(edges[::2].tolist(), edges[1::2].tolist(), strict=True):
+            if epoch[min(b, epoch.size - 1)] - epoch[a] >= v.fault_budget_s - _SLACK_S:
+                return "vital supervision: a decay reason as long as vital.fault_budget_s (decay may latch)"
 
     sel = cfg.filter
     fc = filter_config_for(imu=sel.imu, odometer=sel.odometer, gps=sel.gps, **dict(options.filter_overrides))
@@ -302,7 +319,8 @@ class _Columns:
     """The replay's result columns, allocated once for the prefix's rows and the nm measurements after
     it: the update columns (time, outcome, NIS; ``u_out``/``u_nis`` are the views from the prefix's rows
     on, which the filter writes) and the estimate columns (``e_f`` (7, he + nm): epoch, arc length,
-    arrival, speed, sigma, interval low and high; ``e_i`` (3, he + nm): SEQ, status, line id), of which
+    arrival, speed, sigma, interval low and high; ``e_i`` (4, he + nm): SEQ, status, line id, reason
+    bits), of which
     the first ``he`` rows are the prefix's and the rest are written per estimate sent. np.empty: the
     rows never written are never touched."""
 
@@ -317,7 +335,8 @@ class _Columns:
         self.u_out = self.u_out_all[hu:]
         self.u_nis = self.u_nis_all[hu:]
         self.e_f = np.empty((7, he + nm))
-        self.e_i = np.empty((3, he + nm), dtype=np.int64)
+        self.e_i = np.empty((4, he + nm), dtype=np.int64)  # row 3: reason bits (vital_reason)
+        self.e_i[3, :he] = -1  # the prefix's rows: not recorded, taken as any reason
 
 
 @njit(cache=True, _nrt=False)
@@ -613,6 +632,7 @@ def _replay_ingested(got, track, options, ingest_s: float = 0.0):
         "undone_for_scores": state.undone,
         "compiled_fraction": compiled / n,
         "retransmissions_simulated": "exact prefix only",
+        "reason_bits": e_i[3, :rows],  # taken out again by try_fast_replay (vital_reason)
     }
     last_frame = int(res[R_STOP_FRAME]) if stopped else int(res[R_FRAMES])
     skipped = Counter()
@@ -820,7 +840,8 @@ class _FilterRun:
                 line_id = -1 if est.line_id is None else est.line_id
                 put_row(
                     self.cols.e_f, self.cols.e_i, self.ost, i, epoch, s, float(self.m_time[i]),
-                    est.speed_mps, est.sigma_s_m, int(est.status), 0, line_id, self.seq0, self.z,
+                    est.speed_mps, est.sigma_s_m, int(est.status), _bits_of(est.reasons), line_id, self.seq0,
+                    self.z,
                 )  # fmt: skip
 
     def last_estimate(self, lat: float, lon: float):
