@@ -57,7 +57,11 @@ def run(args: argparse.Namespace) -> int:
         track = TrackDatabase.open(track_path)
     except FileNotFoundError as exc:
         raise ConfigError(f"track {track_path}: no such file") from exc
-    log = JsonLogger(level=cfg.log.level, warning_interval_s=cfg.log.warning_interval_s)
+    log = JsonLogger(
+        level=cfg.log.level,
+        warning_interval_s=cfg.log.warning_interval_s,
+        priority_prefix=cfg.log.priority_prefix,
+    )
     try:
         import time
 

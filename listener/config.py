@@ -17,6 +17,9 @@ from typing import Any
 
 from listener.defaults import DEFAULT_HOST, DEFAULT_LISTENER_PORT, DEFAULT_OBCU_PORT
 from listener.errors import ConfigError
+from sfa.layout import REASON_NAMES
+
+_FILTER_REASONS = frozenset(REASON_NAMES.values())
 
 
 @dataclass(frozen=True)
@@ -92,6 +95,9 @@ class LogConfig:
     level: str = "info"  #: debug, info, warning or error
     metrics_interval_s: float = 10.0  #: period of the metrics snapshot in the log [s]
     warning_interval_s: float = 5.0  #: at most one warning of each kind per interval [s]
+    #: "<N>" syslog priority prefix on each line: "auto" (when stderr is the journal, JOURNAL_STREAM),
+    #: "on" or "off"
+    priority_prefix: str = "auto"
 
 
 @dataclass(frozen=True)
@@ -117,6 +123,46 @@ class AuthSettings:
 
 
 @dataclass(frozen=True)
+class VitalConfig:
+    """Vital supervision (after the Vital Control seed): time-outs on a timer, module vitality, the
+    latched decay state and what the OBCU sees in each state (docs/listener.md, docs/protocol.md)."""
+
+    #: false: no time-out timer, no decay state, nothing withheld (the listener before issue 19: status
+    #: events are still logged as measurements show them). For comparisons of the filter alone
+    enabled: bool = True
+    #: the worst filter status the 18-byte standard output (which has no status field) still carries:
+    #: "degraded" (default: DEGRADED positions go out, LOST and decay stop the output) or "nominal"
+    #: (only NOMINAL positions go out; anything else stops the output so the OBCU's age check trips)
+    standard_output: str = "degraded"
+    decay_on_lost: bool = True  #: LOST latches the decay state
+    #: a declared sensor fault in ``decay_reasons`` present for longer than this latches decay [s]
+    fault_budget_s: float = 10.0
+    #: the filter reasons counted as declared sensor faults for the budget (comma-separated)
+    decay_reasons: str = "imu_timeout,odometer_timeout,imu_stuck,imu_fault,odometer_slip"
+    #: consistent updates (odometer or GNSS accepted while NOMINAL) after the GROUND TRUTH
+    #: re-initialisation that release the decay state [count]
+    recovery_updates: int = 20
+    #: lateness of the timer that evaluates a silent sensor's time-out past its deadline [s]
+    timeout_margin_s: float = 0.001
+    rate_window_s: float = 5.0  #: window of the per-module rate estimate [s]
+    imu_rate_hz: float = 100.0  #: nominal IMU rate [Hz]
+    odometer_rate_hz: float = 20.0  #: nominal odometer rate [Hz]
+    gnss_rate_hz: float = 1.0  #: nominal GNSS fix rate [Hz]
+    #: a module whose rate over the window is below this fraction of its nominal rate is reported slow [-]
+    min_rate_fraction: float = 0.8
+
+
+@dataclass(frozen=True)
+class MetricsConfig:
+    """Prometheus endpoint (off by default)."""
+
+    port: int = 0  #: HTTP port of the /metrics endpoint; 0 = off [0..65535]
+    bind: str = "127.0.0.1"  #: address the endpoint binds to
+    #: upper bounds of the output latency histogram (datagram arrival -> output sent) [s], comma-separated
+    latency_buckets_s: str = "0.0005,0.001,0.002,0.005,0.01,0.02,0.05,0.1,0.25,0.5,1"
+
+
+@dataclass(frozen=True)
 class ListenerConfig:
     """The whole listener configuration."""
 
@@ -128,6 +174,8 @@ class ListenerConfig:
     log: LogConfig = field(default_factory=LogConfig)
     filter: FilterSelection = field(default_factory=FilterSelection)
     auth: AuthSettings = field(default_factory=AuthSettings)
+    vital: VitalConfig = field(default_factory=VitalConfig)
+    metrics: MetricsConfig = field(default_factory=MetricsConfig)
     watchdog_max_lag_s: float = 0.5  #: event-loop lag beyond which WATCHDOG=1 is withheld [s]
 
 
@@ -139,6 +187,8 @@ _SECTIONS = {
     "log": LogConfig,
     "filter": FilterSelection,
     "auth": AuthSettings,
+    "vital": VitalConfig,
+    "metrics": MetricsConfig,
 }
 
 
@@ -216,12 +266,45 @@ def _validate(cfg: ListenerConfig) -> None:
     )
     need(cfg.log.metrics_interval_s > 0.0, "log.metrics_interval_s", "must be > 0")
     need(cfg.log.warning_interval_s >= 0.0, "log.warning_interval_s", "must be >= 0")
+    need(cfg.log.priority_prefix in ("auto", "on", "off"), "log.priority_prefix", "must be auto, on or off")
     need(cfg.watchdog_max_lag_s > 0.0, "watchdog_max_lag_s", "must be > 0")
     need(cfg.filter.presets in ("model-matched", "datasheet"), "filter.presets",
          f"must be model-matched or datasheet, got {cfg.filter.presets!r}")
     need(16 <= cfg.auth.tag_bytes <= 32, "auth.tag_bytes", "must be in 16..32")
     need(cfg.auth.window >= 1, "auth.window", "must be >= 1")
     need(not cfg.auth.enabled or bool(cfg.auth.key_file), "auth.key_file", "required when auth.enabled")
+    v = cfg.vital
+    need(v.standard_output in ("degraded", "nominal"), "vital.standard_output", "must be degraded or nominal")
+    need(v.fault_budget_s >= 0.0, "vital.fault_budget_s", "must be >= 0")
+    unknown = [r for r in decay_reasons(v) if r not in _FILTER_REASONS]
+    known = ", ".join(sorted(_FILTER_REASONS))
+    need(not unknown, "vital.decay_reasons", f"unknown reason(s) {unknown} (known: {known})")
+    need(v.recovery_updates >= 1, "vital.recovery_updates", "must be >= 1")
+    need(0.0 < v.timeout_margin_s <= 0.05, "vital.timeout_margin_s", "must be in (0, 0.05]")
+    need(v.rate_window_s > 0.0, "vital.rate_window_s", "must be > 0")
+    for key in ("imu_rate_hz", "odometer_rate_hz", "gnss_rate_hz"):
+        need(getattr(v, key) > 0.0, f"vital.{key}", "must be > 0")
+    need(0.0 <= v.min_rate_fraction <= 1.0, "vital.min_rate_fraction", "must be in 0..1")
+    need(0 <= cfg.metrics.port <= 65535, "metrics.port", "must be in 0..65535 (0 = off)")
+    try:
+        buckets = latency_buckets(cfg.metrics)
+    except ValueError:
+        buckets = []
+    need(
+        bool(buckets) and all(b > 0 for b in buckets) and buckets == sorted(set(buckets)),
+        "metrics.latency_buckets_s",
+        f"must be increasing positive numbers, got {cfg.metrics.latency_buckets_s!r}",
+    )
+
+
+def decay_reasons(v: VitalConfig) -> tuple[str, ...]:
+    """The configured decay reasons as a tuple of filter reason names."""
+    return tuple(r.strip() for r in v.decay_reasons.split(",") if r.strip())
+
+
+def latency_buckets(m: MetricsConfig) -> list[float]:
+    """The configured histogram bounds [s]; ValueError when one is not a number."""
+    return [float(b) for b in m.latency_buckets_s.split(",") if b.strip()]
 
 
 def _set_dotted(tree: dict[str, Any], dotted: str, raw: str) -> None:

@@ -75,6 +75,8 @@ class ObcuLink:
         self._state = LinkState.IDLE
         self._state_since: float | None = None
         self.transitions: list[tuple[float, str]] = []  #: (time, new state), most recent 1000
+        self.transitions_total = 0  #: state changes since start (``transitions`` keeps the last 1000)
+        self.withheld = 0  #: estimates the pipeline withheld (:meth:`withhold`)
         self.outputs = 0
         self.superseded = 0
         self.retransmits = 0
@@ -107,6 +109,15 @@ class ObcuLink:
             self._first_output = now
         self._update_state(now)
         return [payload]
+
+    def withhold(self, now: float) -> None:
+        """Send nothing more of what was produced so far: the pending estimate is dropped and the newest
+        sent one is never resent (vital supervision: a position that can no longer be vouched for)."""
+        self.withheld += 1
+        self._pending = None
+        if self._newest is not None:
+            self._newest.resends = self._cfg.max_retransmits
+        self._update_state(now)
 
     # ------------------------------------------------------------------ acks
     def receive_ack(self, data: bytes, now: float) -> None:
@@ -197,6 +208,7 @@ class ObcuLink:
             self._state = new
             self._state_since = now
             self.transitions.append((now, new.value))
+            self.transitions_total += 1
             del self.transitions[:-1000]
 
     @property

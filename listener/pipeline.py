@@ -47,6 +47,7 @@ from listener.codec import (
 from listener.config import ListenerConfig
 from listener.obcu_link import ObcuLink
 from listener.seqbuf import SeqBufferConfig, StreamTable, stream_key
+from listener.vital import MODULES, DecaySupervisor, ModuleHealth
 
 #: input counters present in every metrics snapshot, even while zero
 _ALWAYS_REPORTED = (
@@ -63,6 +64,13 @@ _ALWAYS_REPORTED = (
     "stale_not_sent",
 )
 _TYPE_NAMES = {1: "imu", 2: "odometer", 3: "gps", 8: "ground_truth", 9: "strobe", 10: "stop"}
+_MODULE_OF_TYPE = {t: name for name, t in MODULES.items()}
+_LOST = 3  #: FilterStatus.LOST (also what the extended output says while decay is latched)
+_DEGRADED = 2
+_EVENTS_KEPT = 1000  #: events queued for the log at most (the service takes them after every call)
+_TIMEOUT_REASON = {"imu": "imu_timeout", "odometer": "odometer_timeout", "gnss": "gnss_timeout"}
+_RECHECK_STEP_S = 0.002  #: re-check period of a time-out the filter does not show yet [s]
+_RECHECK_FOR_S = 0.05  #: how long past the deadline re-checks go on [s]
 
 
 @dataclass(frozen=True, slots=True)
@@ -130,6 +138,29 @@ class Pipeline:
         self.on_update: Callable[[Any], None] | None = None
         self.on_measurement: Callable[[Any], None] | None = None
         self.on_output: Callable[[int, Any], None] | None = None
+        # ---- vital supervision (listener.vital; docs/listener.md, "Vital supervision")
+        vc = self.cfg.vital
+        self.vital = DecaySupervisor(vc)
+        self._vital_on = vc.enabled
+        rates = {"imu": vc.imu_rate_hz, "odometer": vc.odometer_rate_hz, "gnss": vc.gnss_rate_hz}
+        self.modules = {name: ModuleHealth(name, rates[name], vc.rate_window_s) for name in MODULES}
+        fc = getattr(filt, "config", None)
+        self._timeouts = {
+            "imu": float(getattr(fc, "imu_timeout_s", 0.5)),
+            "odometer": float(getattr(fc, "odo_timeout_s", 1.0)),
+            "gnss": float(getattr(fc, "gps_timeout_s", 3.0)),
+        }
+        self._module_streams: dict[str, set] = {name: set() for name in MODULES}
+        self._timed_out: set[str] = set()  # modules whose time-out the timer has evaluated since heard
+        self._recheck_at: float | None = None  # a time-out due but not yet seen by the filter: look again
+        self._rechecking: set[str] = set()  # the modules that re-check is for
+        self._init_now: float | None = None  # listener time of the last (re)initialisation
+        self._newest_epoch_arrival = 0.0  # listener time the newest epoch arrived
+        self._status: int | None = None  # last status observed (outputs and timer), FilterStatus value
+        self._reasons: tuple[str, ...] = ()
+        self._status_since: float | None = None
+        self.events: deque[dict[str, Any]] = deque(maxlen=_EVENTS_KEPT)
+        self.vital_counters: Counter[str] = Counter()
 
     # ------------------------------------------------------------------ inputs
     def receive(self, data: bytes, addr: Any, now: float) -> list[bytes]:
@@ -154,6 +185,14 @@ class Pipeline:
         stype = int(sensor_type_of(msg))
         self.by_type[_TYPE_NAMES.get(stype, str(stype))] += 1
         key = stream_key(addr, stype, self.cfg.input.per_type_sequence)
+        module = _MODULE_OF_TYPE.get(stype)
+        if module is not None:
+            self.modules[module].heard(now)
+            self._timed_out.discard(module)
+            self._rechecking.discard(module)
+            streams = self._module_streams[module]
+            if key not in streams and len(streams) < 16:
+                streams.add(key)
         released = self.streams.push(key, msg.seq, _Arrived(msg, now), now)
         return self._dispatch(released, now)
 
@@ -176,13 +215,37 @@ class Pipeline:
 
     def next_timer(self) -> float | None:
         """Listener time at which :meth:`handle_timer` should run next."""
-        times = [t for t in (self.streams.next_deadline(), self.link.next_timer()) if t is not None]
+        times = [
+            t
+            for t in (self.streams.next_deadline(), self.link.next_timer(), self._supervision_deadline())
+            if t is not None
+        ]
         return min(times) if times else None
 
     def handle_timer(self, now: float) -> list[bytes]:
-        """Release sequence-buffer holds and run the OBCU link's timers due at ``now``."""
+        """Release sequence-buffer holds, run the OBCU link's timers and the vital supervision due at
+        ``now`` (a silent sensor's time-out, a fault's budget)."""
         out = self._dispatch(self.streams.poll(now), now)
+        due = self._supervision_deadline()
+        if due is not None and now >= due:
+            out.extend(self._supervise(now))
         out.extend(self.link.handle_timer(now))
+        return out
+
+    def take_events(self) -> list[dict[str, Any]]:
+        """The status, decay and link-state events since the last call, oldest first (each with ``at``,
+        the listener time it happened)."""
+        link = self.link
+        new = link.transitions_total - self.vital_counters["link_transitions_seen"]
+        if new > 0:
+            self.vital_counters["link_transitions_seen"] = link.transitions_total
+            trans = link.transitions[-min(new, len(link.transitions)) :]
+            for t, state in trans:
+                self.events.append({"event": "link_state", "at": t, "state": state, **self._heard(t)})
+        if not self.events:
+            return []
+        out = sorted(self.events, key=lambda e: e["at"])
+        self.events.clear()
         return out
 
     def flush(self, now: float) -> list[bytes]:
@@ -235,7 +298,9 @@ class Pipeline:
                 self.rejected["epoch_future"] += 1
                 return
             self.counters["dated_by_epoch"] += 1
-        self._newest_epoch = max(self._newest_epoch, epoch)
+        if epoch > self._newest_epoch:
+            self._newest_epoch = epoch
+            self._newest_epoch_arrival = item.arrival
         self._order += 1
         heapq.heappush(self._heap, (epoch, self._order, item.msg))
         if len(self._heap) > self.cfg.merge.max_pending:
@@ -268,11 +333,151 @@ class Pipeline:
                 self.on_update(update)
             self.counters["processed"] += 1
             self.counters[f"outcome_{update.kind}_{_outcome_name(update.outcome)}"] += 1
-            out.extend(self._maybe_output(now))
+            est = filt.estimate()
+            if update.kind == "init" and int(update.outcome) == 6:  # Outcome.INITIALISED
+                self._init_now = now
+                self._timed_out.clear()
+            if math.isfinite(est.epoch_s):
+                self._observe(est, now, "update")
+                self._note(self.vital.on_update(update.kind, int(update.outcome), int(est.status),
+                                                est.reasons, now), now)
+            out.extend(self._maybe_output(now, est))
         return out
 
-    def _maybe_output(self, now: float) -> list[bytes]:
-        est = self.filter.estimate()
+    # ------------------------------------------------------------------ vital supervision
+    def _sensor_now(self, now: float) -> float | None:
+        """Sensor-set time at listener time ``now``: the STROBE clock, else the newest epoch carried
+        forward at the nominal clock rate; None before either exists."""
+        t = self.clock.to_sensor_time(now)
+        if t is None and math.isfinite(self._newest_epoch):
+            t = self._newest_epoch + (now - self._newest_epoch_arrival) * self.cfg.clock.rate
+        return t
+
+    def _supervision_deadline(self) -> float | None:
+        """Next listener time a silent module's time-out is due (its last datagram, or the
+        initialisation, plus its ``*_timeout_s``), or a fault's budget runs out."""
+        if not self._vital_on or self.stopped:
+            return None
+        best = self.vital.next_timer()
+        init = self._init_now
+        if init is None:
+            return best
+        rate = self.cfg.clock.rate
+        margin = self.cfg.vital.timeout_margin_s
+        if self._recheck_at is not None and (best is None or self._recheck_at < best):
+            best = self._recheck_at
+        for name, mod in self.modules.items():
+            if name in self._timed_out or name in self._rechecking:  # (a re-check: _recheck_at)
+                continue
+            ref = init if mod.last_heard is None or mod.last_heard < init else mod.last_heard
+            due = ref + self._timeouts[name] / rate + margin
+            if best is None or due < best:
+                best = due
+        return best
+
+    def _supervise(self, now: float) -> list[bytes]:
+        """The timer: evaluate the filter's status at the sensor time of ``now`` (so a silent sensor is
+        timed out without waiting for another measurement) and act on a change."""
+        self.vital_counters["timer_checks"] += 1
+        self._recheck_at = None
+        self._rechecking.clear()
+        t = self._sensor_now(now)
+        if t is None or not self.filter.initialised:
+            self._timed_out.update(self.modules)  # nothing to evaluate: until each is heard again
+            self._recheck_at = None
+            self._note(self.vital.observe(self._status or 0, self._reasons, now), now)
+            return []
+        est = self.filter.estimate(at_s=t)
+        if self._init_now is not None:
+            rate, margin = self.cfg.clock.rate, self.cfg.vital.timeout_margin_s
+            for name, mod in self.modules.items():
+                ref = self._init_now if mod.last_heard is None else max(mod.last_heard, self._init_now)
+                due = ref + self._timeouts[name] / rate + margin
+                if now < due or name in self._timed_out:
+                    continue
+                if _TIMEOUT_REASON[name] in est.reasons or now >= due + _RECHECK_FOR_S:
+                    self._timed_out.add(name)
+                else:
+                    # the sensor-time mapping (STROBE clock fit, still settling) puts now a little
+                    # before the filter's own deadline: look again shortly rather than wait for the
+                    # next measurement
+                    self.vital_counters["timer_rechecks"] += 1
+                    self._recheck_at = now + _RECHECK_STEP_S
+                    self._rechecking.add(name)
+        was_latched = self.vital.latched
+        changed = self._observe(est, now, "timer")
+        if not (changed or self.vital.latched != was_latched) or self.last_estimate is None:
+            return []
+        # a change between measurements: the standard output stops if it may no longer carry the
+        # position; the extended output announces the new status with the estimate it has
+        if not self._standard_sendable(int(est.status)) and not self.cfg.link.extended:
+            self.link.withhold(now)
+            return []
+        if self.cfg.link.extended:
+            self.vital_counters["timer_outputs"] += 1
+            self.last_estimate = est
+            return self.link.send_estimate(est, now)
+        return []
+
+    def _standard_sendable(self, status: int) -> bool:
+        """Whether the 18-byte output (no status field) may carry a position of this status."""
+        if not self._vital_on:
+            return True
+        if self.vital.latched or status >= _LOST:
+            return False
+        return status != _DEGRADED or self.cfg.vital.standard_output == "degraded"
+
+    def _heard(self, now: float) -> dict[str, Any]:
+        return {"since_heard_s": {name: _round(mod.age(now)) for name, mod in self.modules.items()}}
+
+    def _observe(self, est, now: float, source: str) -> bool:
+        """Record the status of ``est`` as of ``now``; queue an event when it changed. True if it did."""
+        status = int(est.status)
+        reasons = est.reasons
+        changed = status != self._status or reasons != self._reasons
+        if changed:
+            if status != self._status:
+                self.vital_counters["status_changes"] += 1
+                self.events.append(
+                    {
+                        "event": "status",
+                        "at": now,
+                        "status": est.status.name.lower(),
+                        "previous": None if self._status is None else _STATUS_NAMES.get(self._status),
+                        "reasons": list(reasons),
+                        "source": source,
+                        "previous_for_s": None
+                        if self._status_since is None
+                        else _round(now - self._status_since),
+                        **self._heard(now),
+                    }
+                )
+                self._status_since = now
+            else:
+                self.vital_counters["reason_changes"] += 1
+                self.events.append(
+                    {"event": "reasons", "at": now, "status": est.status.name.lower(),
+                     "reasons": list(reasons), "previous_reasons": list(self._reasons), "source": source}
+                )
+            self._status = status
+            self._reasons = reasons
+        if self._vital_on:
+            # a module never heard is not fitted (e.g. no IMU on a car), not a sensor that failed: its
+            # time-out is not a declared fault for the decay budget (LOST still is)
+            absent = [_TIMEOUT_REASON[n] for n, m in self.modules.items() if m.count == 0]
+            if absent and any(r in reasons for r in absent):
+                reasons = tuple(r for r in reasons if r not in absent)
+            self._note(self.vital.observe(status, reasons, now), now)
+        return changed
+
+    def _note(self, events: list[dict[str, Any]], now: float) -> None:
+        for ev in events:
+            self.vital_counters[ev["event"]] += 1
+            self.events.append({**ev, "at": now, **self._heard(now)})
+
+    def _maybe_output(self, now: float, est=None) -> list[bytes]:
+        if est is None:
+            est = self.filter.estimate()
         if not math.isfinite(est.epoch_s) or not math.isfinite(est.arc_length_m):
             return []
         sensor_now = self.clock.to_sensor_time(now)
@@ -291,6 +496,10 @@ class Pipeline:
             return []
         self._last_output_epoch = est.epoch_s
         self.last_estimate = est
+        if not self.cfg.link.extended and not self._standard_sendable(int(est.status)):
+            self.vital_counters["withheld"] += 1
+            self.link.withhold(now)
+            return []
         return self.link.send_estimate(est, now)
 
     def _encode_estimate(self, seq: int, est) -> bytes:
@@ -309,15 +518,59 @@ class Pipeline:
                     est.speed_mps if math.isfinite(est.speed_mps) else 0.0,
                     est.interval_low_m,
                     est.interval_high_m,
-                    int(est.status),
+                    _LOST if self.vital.latched else int(est.status),
                     est.line_id,
                 )
             )
         return encode_output(OutputMessage(seq, est.epoch_s, est.arc_length_m))
 
     # ------------------------------------------------------------------ metrics
-    def metrics(self) -> dict[str, Any]:
-        """A snapshot of every stage's counters (JSON-serialisable)."""
+    def vitality(self, now: float) -> dict[str, Any]:
+        """Per interface module: last heard, rate against nominal, sequence health; the status as last
+        observed and the decay state (JSON-serialisable)."""
+        vc = self.cfg.vital
+        modules = {}
+        for name, mod in self.modules.items():
+            rate = mod.rate(now)
+            seq = None
+            for key in self._module_streams[name]:
+                buf = self.streams.get(key)
+                if buf is not None:
+                    seq = buf.stats if seq is None else seq + buf.stats
+            age = mod.age(now)
+            modules[name] = {
+                "heard": mod.count,
+                "last_heard_age_s": _round(age),
+                "rate_hz": round(rate, 3),
+                "nominal_rate_hz": mod.nominal_hz,
+                "rate_ok": mod.count > 0 and rate >= vc.min_rate_fraction * mod.nominal_hz,
+                "timeout_s": self._timeouts[name],
+                "timed_out": age is not None and age > self._timeouts[name] / self.cfg.clock.rate,
+                "sequence": None
+                if seq is None
+                else {
+                    "streams": len(self._module_streams[name]),
+                    "in_order": seq.in_order,
+                    "reordered": seq.reordered,
+                    "duplicates": seq.duplicates,
+                    "lost": seq.lost,
+                    "late": seq.late,
+                    "resyncs": seq.resyncs,
+                },
+            }
+        return {
+            "status": None if self._status is None else _STATUS_NAMES.get(self._status),
+            "reasons": list(self._reasons),
+            "status_since": self._status_since,
+            "decay": self.vital.stats(),
+            "modules": modules,
+            "counters": {
+                k: v for k, v in sorted(self.vital_counters.items()) if k != "link_transitions_seen"
+            },
+        }
+
+    def metrics(self, now: float | None = None) -> dict[str, Any]:
+        """A snapshot of every stage's counters (JSON-serialisable); ``now`` adds the vitality section."""
         seq = self.streams.stats
         link = self.link.stats()
         est = self.last_estimate
@@ -379,8 +632,17 @@ class Pipeline:
                 "state": link.state,
                 "state_since": link.state_since,
                 "transitions": [list(t) for t in self.link.transitions[-20:]],
+                "withheld": self.link.withheld,
             },
+            **({} if now is None else {"vital": self.vitality(now)}),
         }
+
+
+_STATUS_NAMES = {0: "initialising", 1: "nominal", 2: "degraded", 3: "lost"}
+
+
+def _round(x: float | None) -> float | None:
+    return None if x is None else round(x, 4)
 
 
 def _outcome_name(outcome: Any) -> str:

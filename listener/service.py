@@ -118,7 +118,9 @@ class ListenerService:
         self.pipeline = pipeline
         self.cfg = config
         self.log = logger or JsonLogger(
-            level=config.log.level, warning_interval_s=config.log.warning_interval_s
+            level=config.log.level,
+            warning_interval_s=config.log.warning_interval_s,
+            priority_prefix=config.log.priority_prefix,
         )
         self.notifier = notifier or Notifier()
         self.counters: dict[str, int] = {
@@ -139,14 +141,19 @@ class ListenerService:
         self._timer_at: float | None = None
         self._done: asyncio.Event | None = None
         self._exit_reason = ""
-        self._last_link_state = ""
+        self._link_logged = 0
         self._last_status = ""
+        self._work_started = 0.0  # loop time the current callback started (output latency)
+        self.metrics_server = None  # listener.metrics.MetricsServer when [metrics] port is set
+        self._wd_processed = -1  # pipeline 'processed' and 'received' at the last watchdog tick
+        self._wd_received = -1
         self.bound_port: int | None = None
 
     # ------------------------------------------------------------------ I/O callbacks
     def on_input(self, data: bytes, addr: Any) -> None:
         assert self._loop is not None
-        self._send(self.pipeline.receive(data, addr, self._loop.time()))
+        self._work_started = self._loop.time()
+        self._send(self.pipeline.receive(data, addr, self._work_started))
         if self.pipeline.stopped:
             self._finish("stop datagram")
         self._rearm()
@@ -157,7 +164,7 @@ class ListenerService:
         assert loop is not None and sock is not None
         pipeline = self.pipeline
         auth = pipeline.auth
-        now = loop.time()
+        now = self._work_started = loop.time()
         drain = False  # a rejection was the last thing the pipeline saw: it drains the merge at `now`
         tally: dict[str, int] = {}  # early rejections of this batch by reason, added to the counters once
         for _ in range(self.cfg.input.batch_datagrams):
@@ -192,28 +199,36 @@ class ListenerService:
 
     def on_ack(self, data: bytes) -> None:
         assert self._loop is not None
-        self._send(self.pipeline.receive_ack(data, self._loop.time()))
+        self._work_started = self._loop.time()
+        self._send(self.pipeline.receive_ack(data, self._work_started))
         self._rearm()
 
     def _on_timer(self) -> None:
         assert self._loop is not None
         self._timer = None
         self._timer_at = None
-        self._send(self.pipeline.handle_timer(self._loop.time()))
+        self._work_started = self._loop.time()
+        self._send(self.pipeline.handle_timer(self._work_started))
         self._rearm()
 
     def _send(self, datagrams: list[bytes]) -> None:
-        if not datagrams or self._out is None:
-            return
-        for payload in datagrams:
-            try:
-                self._out.sendto(payload)
-            except OSError:
-                self.counters["send_errors"] += 1
-        state = self.pipeline.link.state.value
-        if state != self._last_link_state:
-            self._last_link_state = state
-            self.log.info("link_state", state=state)
+        if datagrams and self._out is not None:
+            for payload in datagrams:
+                try:
+                    self._out.sendto(payload)
+                except OSError:
+                    self.counters["send_errors"] += 1
+            if self.metrics_server is not None:
+                self.metrics_server.outputs_sent(len(datagrams), self._work_started)
+        if self.pipeline.events or self.pipeline.link.transitions_total != self._link_logged:
+            self._log_events()
+
+    def _log_events(self) -> None:
+        """Every status, decay and link-state change as its own line, at once (never rate limited)."""
+        self._link_logged = self.pipeline.link.transitions_total
+        for ev in self.pipeline.take_events():
+            kind = ev.pop("event")
+            self.log.log(_event_level(kind, ev), kind, limit=False, **ev)
 
     def _rearm(self) -> None:
         assert self._loop is not None
@@ -234,11 +249,14 @@ class ListenerService:
             self._done.set()
 
     def status_line(self) -> str:
-        m = self.pipeline.metrics()
+        m = self.metrics()
         est = self.pipeline.last_estimate
         pos = "-" if est is None else f"s={est.arc_length_m:.1f}m v={est.speed_mps:.1f}m/s"
+        decay = self.pipeline.vital
+        state = f"DECAY({decay.phase.value}) " if decay.latched else ""
+        status = m.get("vital", {}).get("status") or m["filter"]["status"] or "waiting"  # timer-aware
         return (
-            f"{m['filter']['status'] or 'waiting'} {pos} line={m['filter']['line_id']} "
+            f"{state}{status} {pos} line={m['filter']['line_id']} "
             f"rx={m['input']['received']} rej={m['input'].get('rejected', 0)} "
             f"out={m['link']['outputs']} link={m['link']['state']}"
         )
@@ -252,21 +270,35 @@ class ListenerService:
                 self._last_status = status
                 self.notifier.status(status)
 
+    def filter_progress(self) -> bool:
+        """The filter makes progress: it processed a measurement since the last call, or no new valid
+        measurement arrived that it could have processed (idle is not a failure: silent sensors are
+        the vital supervision's business, not the service manager's)."""
+        by_type = self.pipeline.by_type  # valid measurements (STROBE and STOP are not the filter's)
+        processed = self.pipeline.counters["processed"]
+        received = by_type["imu"] + by_type["odometer"] + by_type["gps"] + by_type["ground_truth"]
+        ok = processed != self._wd_processed or received == self._wd_received or self._wd_processed < 0
+        self._wd_processed, self._wd_received = processed, received
+        return ok
+
     async def _watchdog(self, period_s: float) -> None:
-        """WATCHDOG=1 only while the loop is healthy: it wakes on time and the pipeline is not wedged."""
+        """WATCHDOG=1 only while the event loop wakes on time and the filter makes progress."""
         assert self._loop is not None
         expected = self._loop.time() + period_s
         while True:
             await asyncio.sleep(max(0.0, expected - self._loop.time()))
             lag = self._loop.time() - expected
             expected = self._loop.time() + period_s
-            if lag <= self.cfg.watchdog_max_lag_s:
+            progress = self.filter_progress()
+            if lag <= self.cfg.watchdog_max_lag_s and progress:
                 self.notifier.watchdog()
+                self.counters["watchdog_sent"] = self.counters.get("watchdog_sent", 0) + 1
             else:
-                self.log.warning("watchdog_withheld", loop_lag_s=lag)
+                self.counters["watchdog_withheld"] = self.counters.get("watchdog_withheld", 0) + 1
+                self.log.warning("watchdog_withheld", loop_lag_s=lag, filter_progress=progress)
 
     def metrics(self) -> dict[str, Any]:
-        m = self.pipeline.metrics()
+        m = self.pipeline.metrics(None if self._loop is None else self._loop.time())
         m["service"] = dict(self.counters)
         if self._sock is not None and self._sock.fileno() >= 0:
             m["service"]["kernel_drops"] = kernel_drops(self._sock)
@@ -296,6 +328,8 @@ class ListenerService:
         self._loop = loop
         self._done = asyncio.Event()
         inp = self.cfg.input
+        if self.cfg.metrics.port:  # first: a port in use fails the start before any socket is open
+            self.metrics_server = _start_metrics(self)
         sock = self._sock = self._open_input_socket()
         self.bound_port = sock.getsockname()[1]
         if inp.reader == "protocol":
@@ -333,6 +367,7 @@ class ListenerService:
             watchdog_s=wd,
             reader=inp.reader,
             receive_buffer_bytes=self.receive_buffer_granted,
+            metrics_port=None if self.metrics_server is None else self.metrics_server.port,
         )
         self.notifier.ready(f"listening on {inp.bind}:{self.bound_port}")
         try:
@@ -354,12 +389,56 @@ class ListenerService:
                     transport.close()
             if self._in is None:
                 sock.close()
+            if self.metrics_server is not None:
+                self.metrics_server.stop()
             for sig in (signal.SIGTERM, signal.SIGINT):
                 try:
                     loop.remove_signal_handler(sig)
                 except (NotImplementedError, RuntimeError):  # pragma: no cover
                     pass
         return 0
+
+
+#: log level of each event kind (journald priority follows: journalctl -p warning shows all but info)
+_EVENT_LEVELS = {
+    "decay_entered": "error",
+    "decay_fault": "error",
+    "decay_recovery_reset": "warning",
+    "decay_recovery_rejected": "warning",
+    "decay_standstill": "info",
+    "decay_reinitialised": "info",
+    "decay_released": "warning",
+    "reasons": "info",
+}
+
+
+def _event_level(kind: str, ev: dict[str, Any]) -> str:
+    if kind == "status":
+        return {"lost": "error", "degraded": "warning"}.get(ev.get("status"), "info")
+    if kind == "link_state":
+        return {"down": "error", "degraded": "warning"}.get(ev.get("state"), "info")
+    return _EVENT_LEVELS.get(kind, "info")
+
+
+def _start_metrics(service: ListenerService):
+    """The Prometheus endpoint of ``[metrics]``; ConfigError (one line) when it cannot be served."""
+    from listener.errors import ConfigError
+
+    m = service.cfg.metrics
+    try:
+        from listener.metrics import MetricsServer
+    except ImportError as exc:
+        raise ConfigError(
+            f"metrics.port={m.port}: the Prometheus endpoint needs prometheus_client ({exc.name} missing: "
+            "pip install prometheus_client)"
+        ) from exc
+    server = MetricsServer(service, m)
+    try:
+        server.start()
+    except OSError as exc:
+        why = exc.strerror or exc
+        raise ConfigError(f"metrics.port={m.port}: cannot serve on {m.bind}:{m.port}: {why}") from exc
+    return server
 
 
 def run_service(service: ListenerService, warm_up: bool = True) -> int:

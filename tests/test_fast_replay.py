@@ -20,7 +20,7 @@ from hypothesis import strategies as st
 from interface_modules.scenario import load_scenario
 from interface_modules.tracks import database_path
 from listener.codec import INPUT_FORMS, DecodeError, decode_input, input_layout
-from listener.config import FilterSelection, ListenerConfig, MergeConfig
+from listener.config import FilterSelection, ListenerConfig, MergeConfig, VitalConfig
 from tools.capture_reader import CaptureStats, read_capture
 from tools.fast_decode import decode_bytes
 from tools.fast_pcap import scan_capture
@@ -140,13 +140,69 @@ def test_reinitialisation_and_a_time_jump_go_through_trackfilter(sim, tmp_path):
     out = dgrams[: k + 1] + [again] + [d for d in dgrams[k + 1 :] if not 35.0 <= d[0] - t0 < 50.0]
     cap = tmp_path / "reinit-gap.pcap"
     write_capture(cap, _resequence(out))
-    exact = replay_capture(cap, sim["track"], ReplayOptions())
-    fast, info = try_fast_replay(cap, sim["track"], ReplayOptions())
+    # the filter alone (vital supervision off): with it, the 15 s silence latches the decay state
+    # (LOST on the listener's timer), which the compiled path does not model: see the next test
+    opts = ReplayOptions(config=ListenerConfig(vital=VitalConfig(enabled=False)))
+    exact = replay_capture(cap, sim["track"], opts)
+    fast, info = try_fast_replay(cap, sim["track"], opts)
     assert info.used, info.reason
     assert_same(exact, fast)
     counters = exact.metrics["filter"]["counters"]
     assert counters["initialisations"] == 2 and counters["time_jumps_rejected"] == 1
     assert 2 <= info.python_steps < 0.2 * fast.datagrams
+    # with the supervision on (the default) the fast path declines, and the exact replay withholds
+    # the standard output once decay latches (no standstill + GROUND TRUTH follows)
+    fast_on, info_on = try_fast_replay(cap, sim["track"], ReplayOptions())
+    assert fast_on is None and "vital supervision" in info_on.reason
+    on = replay_capture(cap, sim["track"], ReplayOptions())
+    assert on.metrics["link"]["outputs"] < exact.metrics["link"]["outputs"]
+    assert on.metrics["link"]["withheld"] > 0
+    assert on.metrics["vital"]["decay"]["latched"]  # (this capture latches first on a long slip)
+
+
+@pytest.mark.parametrize(("stype", "seconds"), [(3, 6.0), (1, 1.0)])
+def test_a_single_silent_sensor_keeps_the_fast_path(sim, tmp_path, stype, seconds):
+    """GNSS silent for 6 s (past its 3 s time-out), or the IMU for 1 s with the odometer going on: the
+    listener's timer reports DEGRADED between measurements, but with the standard output and the
+    default decay reasons nothing sent changes, so the fast path is used and equals the exact replay."""
+    dgrams = list(sim["dgrams"])
+    t0 = dgrams[0][0]
+    cut = [d for d in dgrams if not (d[2][0] == stype and 30.0 <= d[0] - t0 < 30.0 + seconds)]
+    cap = tmp_path / f"silent-{stype}.pcap"
+    write_capture(cap, _resequence(cut))  # a sensor that stops sending, not lost datagrams
+    exact = replay_capture(cap, sim["track"], ReplayOptions())
+    fast, info = try_fast_replay(cap, sim["track"], ReplayOptions())
+    assert info.used, info.reason
+    assert_same(exact, fast)
+    vital = exact.metrics["vital"]
+    base = replay_capture(sim["cap"], sim["track"], ReplayOptions()).metrics["vital"]
+    assert vital["counters"]["timer_checks"] > base["counters"]["timer_checks"]  # it ran for the silence
+    # decay only at the capture's end: every sensor stops some 0.5 s before the simulator's STOP
+    last_sensor = max(t for t, _, p in cut if p[0] in (1, 2, 3))
+    assert not vital["decay"]["latched"] or vital["decay"]["entered_at"] > last_sensor
+
+
+def test_vital_reason_runs_of_decay_reasons():
+    """The DEGRADED-run rule of vital_reason looks at the reasons of the rows: a long run of a reason
+    that is not a decay reason (a GNSS rejection) keeps the fast path, one of a decay reason does not,
+    and a module never heard (its time-out is not a failed sensor) does not count."""
+    from types import SimpleNamespace
+
+    from sfa.layout import R_GNSS_REJECTING, R_IMU_TIMEOUT
+    from tools.fast_replay import vital_reason
+
+    n = 200
+    epoch = 1000.0 + 0.1 * np.arange(n)  # 20 s of outputs
+    result = SimpleNamespace(estimates={"status": np.full(n, 2, dtype=np.int64), "epoch": epoch})
+    arrivals = np.arange(0.0, 20.0, 0.01)
+    got = SimpleNamespace(m_time=np.concatenate((arrivals, arrivals)),
+                          kind=np.concatenate((np.full(arrivals.size, 1), np.full(arrivals.size, 2))))
+    opts = ReplayOptions()
+    assert vital_reason(got, result, opts, np.full(n, R_GNSS_REJECTING)) == ""
+    assert "decay reason" in vital_reason(got, result, opts, np.full(n, R_IMU_TIMEOUT))
+    assert "decay reason" in vital_reason(got, result, opts, np.full(n, -1))  # not recorded: any
+    no_imu = SimpleNamespace(m_time=arrivals, kind=np.full(arrivals.size, 2))
+    assert vital_reason(no_imu, result, opts, np.full(n, R_IMU_TIMEOUT)) == ""
 
 
 def test_future_epochs_are_rejected_identically(sim, tmp_path):

@@ -410,6 +410,7 @@ def put_row(e_f, e_i, ost, i, epoch, s, arrival, speed, sig, status, bits, line_
     e_i[0, k] = (seq0 + k) & 0xFFFF
     e_i[1, k] = status
     e_i[2, k] = line_id
+    e_i[3, k] = bits
     if ost[O_LAST] < 0 or line_id < ost[O_LINE_LO]:
         ost[O_LINE_LO] = line_id
     if ost[O_LAST] < 0 or line_id > ost[O_LINE_HI]:

@@ -119,7 +119,96 @@ def try_fast_replay(capture_path, track, options=None):
         return None, FastReplayInfo(False, f"capture: {got}")
     if got.res[R_DATAGRAMS] == 0:
         return None, FastReplayInfo(False, "no datagram to the listener port")
-    return _replay_ingested(got, track, options, ingest_s)
+    result, info = _replay_ingested(got, track, options, ingest_s)
+    if result is not None:
+        why = vital_reason(got, result, options, result.metrics["fast_replay"].pop("reason_bits"))
+        if why:
+            return None, _info(False, why, info.exact_prefix)
+    return result, info
+
+
+_SLACK_S = 0.01  #: vital_reason errs this much towards the exact replay (the timer's margin is 1 ms) [s]
+
+
+def _bits_of(reasons) -> int:
+    from sfa.layout import REASON_NAMES
+
+    return sum(bit for bit, name in REASON_NAMES.items() if name in reasons)
+
+
+def vital_reason(got, result, options, bits=None) -> str:
+    """Why the listener's vital supervision (listener.vital, run by the exact pipeline on its timer)
+    could have changed what was sent, in which case the exact replay is needed; "" when it could not.
+
+    The compiled path has no timer and no decay state, so it is used only when none of these happened:
+    a LOST output; a run of non-NOMINAL outputs as long as the fault budget; a DEGRADED output under
+    the extended output or ``vital.standard_output = "nominal"`` (the timer would announce or withhold
+    it); with those, any sensor silent beyond its time-out; otherwise IMU and odometer both silent
+    beyond their time-outs at the same time between two datagrams (LOST on the timer, which latches
+    decay), or a sensor whose time-out is a decay reason silent for the fault budget. A silence at the
+    very end (after the last datagram of a module, to the end of the capture) changes nothing sent."""
+    cfg = options.config
+    v = cfg.vital
+    if not v.enabled:
+        return ""
+    status = result.estimates["status"]
+    if status.size == 0:
+        return ""
+    if np.any(status == 3):
+        return "vital supervision: a LOST estimate (the decay state runs in the exact replay)"
+    degraded = status == 2
+    strict = v.standard_output == "nominal" or cfg.link.extended
+    if np.any(degraded) and strict:
+        return "vital supervision: DEGRADED estimates with the extended output or standard_output = nominal"
+    from listener.config import decay_reasons
+    from sfa.layout import REASON_NAMES
+    from sfa.presets import filter_config_for
+
+    if np.any(degraded):
+        # a run of outputs carrying a decay reason (bits -1: not recorded, any) as long as the budget;
+        # the time-out of a module never heard is not one (listener.pipeline: not fitted, not failed)
+        names = set(decay_reasons(v))
+        heard = {1: "imu_timeout", 2: "odometer_timeout", 3: "gnss_timeout"}
+        for kind, name in heard.items():
+            if not np.any(got.kind == kind):
+                names.discard(name)
+        mask = sum(bit for bit, name in REASON_NAMES.items() if name in names)
+        flagged = degraded if bits is None else degraded & ((bits < 0) | ((bits & mask) != 0))
+        epoch = result.estimates["epoch"]
+        edges = np.flatnonzero(np.diff(np.concatenate(([0], flagged.astype(np.int8), [0]))))
+        for a, b in zip(edges[::2].tolist(), edges[1::2].tolist(), strict=True):
+            if epoch[min(b, epoch.size - 1)] - epoch[a] >= v.fault_budget_s - _SLACK_S:
+                return "vital supervision: a decay reason as long as vital.fault_budget_s (decay may latch)"
+
+    sel = cfg.filter
+    fc = filter_config_for(imu=sel.imu, odometer=sel.odometer, gps=sel.gps, **dict(options.filter_overrides))
+    rate = cfg.clock.rate
+    timeouts = {1: fc.imu_timeout_s / rate, 2: fc.odo_timeout_s / rate, 3: fc.gps_timeout_s / rate}
+    reason_of = {1: "imu_timeout", 2: "odometer_timeout", 3: "gnss_timeout"}
+    decay = set(decay_reasons(v))
+    silent: dict[int, np.ndarray] = {}  # per SENSOR_TYPE: (gap start + time-out, next arrival) rows
+    for kind in (1, 2, 3):
+        t = got.m_time[got.kind == kind]
+        if t.size < 2:
+            silent[kind] = np.zeros((0, 2))
+            continue
+        gaps = np.diff(t)
+        over = np.flatnonzero(gaps > timeouts[kind])
+        silent[kind] = np.stack((t[over] + timeouts[kind], t[over + 1]), axis=1)
+        if over.size and strict:
+            return f"vital supervision: a sensor (type {kind}) silent longer than its time-out"
+        longest = float(gaps[over].max()) if over.size else 0.0
+        if reason_of[kind] in decay and longest >= timeouts[kind] + v.fault_budget_s - _SLACK_S:
+            return f"vital supervision: a sensor (type {kind}) silent for the fault budget"
+    a, b = silent[1], silent[2]
+    if a.size and b.size:
+        lo = np.maximum(a[:, None, 0], b[None, :, 0]) if a.shape[0] * b.shape[0] <= 4_000_000 else None
+        if lo is None:
+            return "vital supervision: too many IMU and odometer gaps to check"
+        hi = np.minimum(a[:, None, 1], b[None, :, 1])
+        if np.any(lo < hi + _SLACK_S):
+            return "vital supervision: IMU and odometer silent together beyond their time-outs (LOST)"
+    return ""
 
 
 def _options_reason(options) -> str:
@@ -230,7 +319,8 @@ class _Columns:
     """The replay's result columns, allocated once for the prefix's rows and the nm measurements after
     it: the update columns (time, outcome, NIS; ``u_out``/``u_nis`` are the views from the prefix's rows
     on, which the filter writes) and the estimate columns (``e_f`` (7, he + nm): epoch, arc length,
-    arrival, speed, sigma, interval low and high; ``e_i`` (3, he + nm): SEQ, status, line id), of which
+    arrival, speed, sigma, interval low and high; ``e_i`` (4, he + nm): SEQ, status, line id, reason
+    bits), of which
     the first ``he`` rows are the prefix's and the rest are written per estimate sent. np.empty: the
     rows never written are never touched."""
 
@@ -245,7 +335,8 @@ class _Columns:
         self.u_out = self.u_out_all[hu:]
         self.u_nis = self.u_nis_all[hu:]
         self.e_f = np.empty((7, he + nm))
-        self.e_i = np.empty((3, he + nm), dtype=np.int64)
+        self.e_i = np.empty((4, he + nm), dtype=np.int64)  # row 3: reason bits (vital_reason)
+        self.e_i[3, :he] = -1  # the prefix's rows: not recorded, taken as any reason
 
 
 @njit(cache=True, _nrt=False)
@@ -541,6 +632,7 @@ def _replay_ingested(got, track, options, ingest_s: float = 0.0):
         "undone_for_scores": state.undone,
         "compiled_fraction": compiled / n,
         "retransmissions_simulated": "exact prefix only",
+        "reason_bits": e_i[3, :rows],  # taken out again by try_fast_replay (vital_reason)
     }
     last_frame = int(res[R_STOP_FRAME]) if stopped else int(res[R_FRAMES])
     skipped = Counter()
@@ -751,7 +843,8 @@ class _FilterRun:
                 line_id = -1 if est.line_id is None else est.line_id
                 put_row(
                     self.cols.e_f, self.cols.e_i, self.ost, i, epoch, s, float(self.m_time[i]),
-                    est.speed_mps, est.sigma_s_m, int(est.status), 0, line_id, self.seq0, self.z,
+                    est.speed_mps, est.sigma_s_m, int(est.status), _bits_of(est.reasons), line_id, self.seq0,
+                    self.z,
                 )  # fmt: skip
 
     def last_estimate(self, lat: float, lon: float):

@@ -215,7 +215,7 @@ def replay_datagrams(
         estimates=est,
         updates=updates,
         gps=gps,
-        metrics=pipe.metrics(),
+        metrics=pipe.metrics(last_t),
         datagrams=n,
         skipped_sensor=skipped,
         measurements=measurements,

@@ -30,7 +30,8 @@ from tools.faults.spec import Campaign
 #: column order of the tables (a row may lack some: shown as "-")
 COLUMNS = (
     "scenario", "mode", "verdict", "sim_s", "crashes", "fresh_outputs", "p95_m", "max_m", "coverage",
-    "fault_coverage", "reasons", "lost_inj", "lost_det", "dup_inj", "dup_det", "reord_inj", "reord_det",
+    "fault_coverage", "reasons", "told_s", "told_status", "nominal_age_max_s", "lost_inj", "lost_det",
+    "dup_inj", "dup_det", "reord_inj", "reord_det",
     "rej_inj", "rej_det", "net_drops", "flips", "forged_valid", "accepted_bad", "resyncs", "auth_acc",
     "auth_rej", "auth_bad", "age_p99_s", "age_max_s", "stale_fresh",
     "degraded_after_s", "recover_s", "memory_growth_mb", "latency_p99_ms", "link_timeline", "checks",

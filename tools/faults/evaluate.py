@@ -64,6 +64,8 @@ class Observation:
     notes: list[str] = field(default_factory=list)
     corruption: bool = False  #: bit flips on the input link (gaps then also come from rejects)
     auth: dict[str, Any] = field(default_factory=dict)  #: authenticated link counters (replay path)
+    #: STATUS of each fresh output as the OBCU received it (extended output; None: not observable)
+    fresh_status: np.ndarray | None = None
 
 
 def _fmt(x: float | None, digits: int = 2) -> str:
@@ -124,6 +126,8 @@ def evaluate(obs: Observation, expect: dict[str, Any]) -> dict[str, Any]:
             for i in np.flatnonzero(mask):
                 reasons.update(obs.fresh_reasons[i])
     row["fault_coverage"] = _fmt(fault_cov, 4) if obs.sensor_fault_windows else "-"
+    row["told_s"], row["told_status"] = _told(obs)
+    row["nominal_age_max_s"] = _nominal_age_max(obs)
     row["reasons"] = " ".join(sorted(reasons - {"standstill"})) if obs.sensor_fault_windows else "-"
     # injected versus detected
     ip = {k: int(v) for k, v in obs.input_proxy.items()}
@@ -175,6 +179,32 @@ def evaluate(obs: Observation, expect: dict[str, Any]) -> dict[str, Any]:
     row["verdict"] = "PASS" if all(checks.values()) else "FAIL"
     row["notes"] = "; ".join(obs.notes)
     return row
+
+
+_STATUS = {0: "initialising", 1: "nominal", 2: "degraded", 3: "lost"}
+
+
+def _told(obs: Observation) -> tuple[str, str]:
+    """Intervention time at the OBCU: from the first sensor fault's onset to the arrival of the first
+    fresh output whose STATUS is not NOMINAL (times from the run start), and that status; "-" without a
+    sensor fault or an observable status, "never" when no such output came during the fault."""
+    if not obs.sensor_fault_windows or obs.fresh_status is None:
+        return "-", "-"
+    a, b = obs.sensor_fault_windows[0]
+    hit = np.flatnonzero((obs.fresh_arrival >= a) & (obs.fresh_arrival < b + 5.0) & (obs.fresh_status != 1))
+    if not hit.size:
+        return "never", "-"
+    i = int(hit[0])
+    code = int(obs.fresh_status[i])
+    return _fmt(float(obs.fresh_arrival[i] - a), 3), _STATUS.get(code, str(code))
+
+
+def _nominal_age_max(obs: Observation) -> str:
+    """Largest age at the OBCU of a fresh output that said NOMINAL (SUBSET-041: must stay below 1 s)."""
+    if obs.fresh_status is None or not obs.fresh_age.size:
+        return "-"
+    age = obs.fresh_age[(obs.fresh_status == 1) & np.isfinite(obs.fresh_age)]
+    return _fmt(float(age.max()) if age.size else None, 3)
 
 
 def _checks(row, obs, expect, acc, fault_cov, reasons, deg, rec) -> dict[str, bool]:

@@ -113,6 +113,7 @@ def run_replay(spec: ScenarioSpec, out_dir: Path) -> Observation:
         corruption=bool(spec.input_link and (spec.input_link.bitflip > 0 or spec.input_link.forge_on_stream)),
     )
     obs.auth = trace.auth
+    obs.fresh_status = np.array([f.status for f in fresh], dtype=np.int64)
     if trace.crash:
         obs.notes.append("crash: " + trace.crash.strip().splitlines()[-1])
     (out_dir / "trace.json").write_text(json.dumps({
