@@ -77,4 +77,4 @@ def test_replay_jobs_must_be_positive(capsys):
         cli.main(["replay", "capture.pcap", "--track", "t.db", "--out", "o", "--jobs", "0"])
     assert exc.value.code == 2
     err = capsys.readouterr().err
-    assert "--jobs" in err and "must be >= 1, got '0'" in err
+    assert "--jobs" in err and "must be >= 1, got '0'" in err  # track_db.cli.count_from_1

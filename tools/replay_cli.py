@@ -4,16 +4,7 @@ from __future__ import annotations
 
 import argparse
 
-
-def _positive_int(text: str) -> int:
-    """argparse type: an integer >= 1 (argparse names the option and the value)."""
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"{text!r} is not an integer") from None
-    if value < 1:
-        raise argparse.ArgumentTypeError(f"must be >= 1, got {text!r}")
-    return value
+from track_db.cli import count_from_1
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -47,7 +38,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument("--sweep-file", help="TOML file of [[config]] tables to sweep")
     parser.add_argument(
-        "--jobs", type=_positive_int, default=None, help="parallel replays for sweeps (default: all cores)"
+        "--jobs", type=count_from_1, default=None, help="parallel replays for sweeps (default: all cores)"
     )
     parser.add_argument("--no-baselines", action="store_true", help="skip the baseline estimators")
     parser.add_argument("--no-report", action="store_true", help="skip figures and report.html")

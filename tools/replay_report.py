@@ -34,7 +34,8 @@ def write_estimates_csv(result, path: Path) -> None:
             )
 
 
-def _json_default(value: Any) -> Any:
+def json_default(value: Any) -> Any:
+    """``json.dumps`` default: numpy scalars as Python numbers, anything else as its str."""
     if isinstance(value, np.integer):
         return int(value)
     if isinstance(value, np.floating):
@@ -53,7 +54,7 @@ def _finite(obj: Any) -> Any:
 
 
 def write_metrics_json(metrics: dict[str, Any], path: Path) -> None:
-    path.write_text(json.dumps(_finite(metrics), indent=2, sort_keys=True, default=_json_default) + "\n")
+    path.write_text(json.dumps(_finite(metrics), indent=2, sort_keys=True, default=json_default) + "\n")
 
 
 def write_geojson(result, path: Path, every_s: float = 1.0) -> None:

@@ -26,6 +26,7 @@ from typing import Any
 import numpy as np
 
 from tools.estimates_schema import COLUMNS, REASON_BITS, REASONS_COLUMN, STATUS_CODES
+from tools.replay_report import json_default as _json_default
 
 STATUS_COLOURS = {0: "0.65", 1: "tab:green", 2: "tab:orange", 3: "tab:red"}
 MAP_MARGIN = 0.05  #: map margin on each side, as a fraction of the run's extent
@@ -409,14 +410,6 @@ def _fmt(v: Any) -> str:
     if isinstance(v, float):
         return f"{v:.4g}" if math.isfinite(v) else "-"
     return str(v)
-
-
-def _json_default(value: Any) -> Any:
-    if isinstance(value, np.integer):
-        return int(value)
-    if isinstance(value, np.floating):
-        return float(value)
-    return str(value)
 
 
 _SUMMARY = (

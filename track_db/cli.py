@@ -37,7 +37,8 @@ def _tag_filter(text: str) -> tuple[str, str | None]:
     return key.strip(), (value if eq else None)
 
 
-def _count_from_1(text: str) -> int:
+def count_from_1(text: str) -> int:
+    """argparse type: a whole number >= 1 (argparse names the option and the value)."""
     try:
         value = int(text)
     except ValueError:
@@ -124,7 +125,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="vertices closer than this are one network node (default 1)",
     )
     p.add_argument(
-        "--default-line", type=_count_from_1, default=1, metavar="N", help="1-based default line (default 1)"
+        "--default-line", type=count_from_1, default=1, metavar="N", help="1-based default line (default 1)"
     )
     p.set_defaults(_track=_run_import)
 

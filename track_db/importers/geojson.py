@@ -21,9 +21,10 @@ from ..build import LineGeometry, StopPoint
 from ..errors import ImportFailed
 from ..stitch import stitch_parts
 from . import ImportBatch, ImportOptions
-from .osm import ROUTES_OF, STOP_TAGS, from_geojson_features, is_osm_geojson, osm_to_batch
+from .osm import ROUTES_OF, STOP_TAGS, feature_parts, from_geojson_features, is_osm_geojson, osm_to_batch
 
 __all__ = ["load_geojson"]
+
 
 
 def _norm(name: str) -> str:
@@ -118,13 +119,7 @@ def load_geojson(src: Path, options: ImportOptions) -> ImportBatch:
     nulls = 0
     unselected = 0
     for k, feat in enumerate(feats):
-        where = f"feature {k}"
-        if not isinstance(feat, dict) or feat.get("type") != "Feature":
-            raise ImportFailed(f"{where}: not a GeoJSON Feature")
-        props = feat.get("properties") or {}
-        if not isinstance(props, dict):
-            raise ImportFailed(f"{where}: properties must be an object, got {props!r}")
-        geom = feat.get("geometry")
+        where, props, geom = feature_parts(k, feat)
         if geom is None:
             nulls += 1  # e.g. a relation an export could not give a geometry
             continue

@@ -107,6 +107,17 @@ class OsmData:
     missing_nodes: int = 0  #: way nodes without a location (outside a cropped extract)
 
 
+def feature_parts(k: int, feat) -> tuple[str, dict, object]:
+    """Feature number k of a FeatureCollection: its label for errors, its properties and its geometry
+    (None when null); a non-Feature or non-object properties is an ImportFailed naming it."""
+    where = f"feature {k}"
+    if not isinstance(feat, dict) or feat.get("type") != "Feature":
+        raise ImportFailed(f"{where}: not a GeoJSON Feature")
+    props = feat.get("properties") or {}
+    if not isinstance(props, dict):
+        raise ImportFailed(f"{where}: properties must be an object, got {props!r}")
+    return where, props, feat.get("geometry")
+
 def _key(lon: float, lat: float) -> tuple[int, int]:
     return (round(lon * _SCALE), round(lat * _SCALE))
 
@@ -228,13 +239,7 @@ def from_geojson_features(feats: list, positions) -> OsmData:
         return rel
 
     for k, feat in enumerate(feats):
-        where = f"feature {k}"
-        if not isinstance(feat, dict) or feat.get("type") != "Feature":
-            raise ImportFailed(f"{where}: not a GeoJSON Feature")
-        props = feat.get("properties") or {}
-        if not isinstance(props, dict):
-            raise ImportFailed(f"{where}: properties must be an object, got {props!r}")
-        geom = feat.get("geometry")
+        where, props, geom = feature_parts(k, feat)
         ident = _osm_id(feat, props)
         if ident is None:
             data.skipped["features without an OSM id"] += 1
