@@ -268,8 +268,10 @@ def _validate(cfg: ListenerConfig) -> None:
     need(cfg.log.warning_interval_s >= 0.0, "log.warning_interval_s", "must be >= 0")
     need(cfg.log.priority_prefix in ("auto", "on", "off"), "log.priority_prefix", "must be auto, on or off")
     need(cfg.watchdog_max_lag_s > 0.0, "watchdog_max_lag_s", "must be > 0")
-    need(cfg.filter.presets in ("model-matched", "datasheet"), "filter.presets",
-         f"must be model-matched or datasheet, got {cfg.filter.presets!r}")
+    from sfa.presets import PRESET_FAMILIES
+
+    need(cfg.filter.presets in PRESET_FAMILIES, "filter.presets",
+         f"must be {' or '.join(PRESET_FAMILIES)}, got {cfg.filter.presets!r}")
     need(16 <= cfg.auth.tag_bytes <= 32, "auth.tag_bytes", "must be in 16..32")
     need(cfg.auth.window >= 1, "auth.window", "must be >= 1")
     need(not cfg.auth.enabled or bool(cfg.auth.key_file), "auth.key_file", "required when auth.enabled")
