@@ -106,10 +106,7 @@ class _Hypothesis:
         self.sync(cfg)
         h = self.clone()
         h.mem[:] = 0.0
-        h.x[L.V] = -h.x[L.V]
-        h.aux[L.A_DIR] = -h.aux[L.A_DIR]
-        h.P[L.V, :] = -h.P[L.V, :]
-        h.P[:, L.V] = -h.P[:, L.V]
+        K.mirror(h.x, h.P, h.aux)
         return h
 
 

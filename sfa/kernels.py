@@ -298,6 +298,19 @@ def geom_at(ts, te, tn, s):
 
 
 @njit(cache=True, _nrt=False, error_model="numpy")
+def mirror(x, P, aux):
+    """A copy of a hypothesis turned into the opposite sense of travel at the same place (the train
+    may reverse while standing): v and the direction change sign, and so do P's row and column of v
+    (TrackFilter's mirrored hypotheses and the fast replay's, one implementation)."""
+    x[V] = -x[V]
+    aux[A_DIR] = -aux[A_DIR]
+    for q in range(NX):
+        P[V, q] = -P[V, q]
+    for q in range(NX):
+        P[q, V] = -P[q, V]
+
+
+@njit(cache=True, _nrt=False, error_model="numpy")
 def cross_track(ts, te, tn, s, east, north):
     """Signed distance of the point (east, north) from the line, left of the direction of increasing
     arc length positive [m], the unit normal there and the foot's arc length: the foot found from s by

@@ -181,12 +181,7 @@ def _spawn_reversals(order, ns, X, PP, AUX, CNT, MEM, cfg):
         _copy1(AUX[free], AUX[h])
         _copy1(CNT[free], CNT[h])
         MEM[free, :] = 0.0
-        X[free, L.V] = -X[free, L.V]
-        AUX[free, L.A_DIR] = -AUX[free, L.A_DIR]
-        for q in range(L.NX):
-            PP[free, L.V, q] = -PP[free, L.V, q]
-        for q in range(L.NX):
-            PP[free, q, L.V] = -PP[free, q, L.V]
+        K.mirror(X[free], PP[free], AUX[free])
         order[total] = free
         total += 1
     if total > nh:  # as TrackFilter._empty_gyro_windows: every window (the copies' too) starts empty
