@@ -6,10 +6,12 @@ so ``v_{k+1} = v_k + a_k dt`` and ``d_{k+1} = d_k + v_k dt + a_k dt^2 / 2`` (``d
 arc length ``s = s_start + direction * d`` within a leg). A step that would make the speed negative is
 shortened to stop exactly at 0 (``a_k = -v_k / dt``). The truth arrays store ``t_k, s_k, v_k, a_k``.
 
-The driver follows the leg's planned profile in space (``v_ref(x)``, ``a_ff(x) = v dv/dx``) with a
-feedforward + PI speed tracker; the commanded force adds the known resistances, is clipped to the
-traction envelope and the service brake, and its rate is limited by the jerk limit. At a stopping
-point the train dwells until ``max(actual arrival + dwell, scheduled departure)``.
+The driver follows the leg's planned profile in space (``v_ref(x)``, ``a_ff(x) = v dv/dx``). The
+default is the ATO seed's gain-scheduled PID with actuator lag (:mod:`interface_modules.ato_driver`);
+:class:`DriverConfig` selects the earlier feedforward + PI speed tracker (``[driver] kind = "pi"``):
+its commanded force adds the known resistances, is clipped to the traction envelope and the service
+brake, and its rate is limited by the jerk limit (no actuator lag). At a stopping point the train
+dwells until ``max(actual arrival + dwell, scheduled departure)``.
 """
 
 from __future__ import annotations
@@ -164,12 +166,12 @@ def drive(
 ) -> Trajectory:
     """Simulate the train through ``legs`` (see module doc). ``max_time_s`` truncates the run.
 
-    ``driver``: :class:`DriverConfig` (feedforward + PI, the default) or
-    :class:`~interface_modules.ato_driver.AtoPidConfig` (the seed's PIDGS with actuator lag).
+    ``driver``: :class:`~interface_modules.ato_driver.AtoPidConfig` (the seed's PIDGS with actuator
+    lag; None: its defaults) or :class:`DriverConfig` (the earlier feedforward + PI driver).
     """
     if not legs:
         raise SimError("a journey needs at least two stopping points")
-    cfg = driver or DriverConfig()
+    cfg = driver or AtoPidConfig()
     ato = isinstance(cfg, AtoPidConfig)
     if ato:
         preview_s = cfg.preview_s(spec.plan_accel_mps2, spec.plan_decel_mps2, spec.jerk_limit_mps3)

@@ -131,9 +131,9 @@ class Scenario:
     control: ModuleConfig
     network: NetworkConfig
     faults: tuple[Fault, ...] = ()
-    #: the driver: DriverConfig (``[driver] kind = "pi"``, the default: feedforward + PI) or
-    #: AtoPidConfig (``kind = "ato-pid"``: the ATO seed's gain-scheduled PID with actuator lag)
-    driver: DriverConfig | AtoPidConfig = dataclasses.field(default_factory=DriverConfig)
+    #: the driver: AtoPidConfig (``[driver] kind = "ato-pid"``, the default: the ATO seed's gain-scheduled
+    #: PID with actuator lag) or DriverConfig (``kind = "pi"``: the earlier feedforward + PI driver)
+    driver: DriverConfig | AtoPidConfig = dataclasses.field(default_factory=AtoPidConfig)
     source: str = ""  #: file the scenario came from
     base_dir: str = ""  #: directory relative paths are resolved against
 
@@ -495,7 +495,7 @@ DRIVER_KINDS: dict[str, type] = {"pi": DriverConfig, "ato-pid": AtoPidConfig}
 
 def _driver(data: dict) -> DriverConfig | AtoPidConfig:
     data = dict(data)
-    kind = data.pop("kind", "pi")
+    kind = data.pop("kind", "ato-pid")
     if kind not in DRIVER_KINDS:
         raise ScenarioError(f"driver.kind {kind!r} unknown (known: {', '.join(DRIVER_KINDS)})")
     try:

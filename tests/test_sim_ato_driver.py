@@ -108,14 +108,27 @@ def test_gains_are_scheduled_on_the_reference_speed(ring):
     assert a.t_s.size != b.t_s.size or not np.array_equal(a.v_mps, b.v_mps)
 
 
-def test_the_driver_is_deterministic_and_the_pi_driver_stays_the_default(ring):
+def test_the_driver_is_deterministic_the_default_and_the_pi_driver_an_option(ring):
     sc, _line, legs = ring
     a = drive(sc.train, legs, dt_s=DT, driver=sc.driver)
-    b = drive(sc.train, legs, dt_s=DT, driver=sc.driver)
+    b = drive(sc.train, legs, dt_s=DT)
     assert np.array_equal(a.s_m, b.s_m) and np.array_equal(a.a_mps2, b.a_mps2) and a.events == b.events
-    assert isinstance(load_scenario("tram-urban").driver, DriverConfig)
-    pi = drive(sc.train, legs, dt_s=DT)
-    assert not np.array_equal(pi.a_mps2[: a.a_mps2.size], a.a_mps2[: pi.a_mps2.size])
+    assert isinstance(load_scenario("tram-urban").driver, AtoPidConfig)
+    pi = drive(sc.train, legs, dt_s=DT, driver=DriverConfig())
+    n = min(pi.a_mps2.size, a.a_mps2.size)
+    assert not np.array_equal(pi.a_mps2[:n], a.a_mps2[:n])
+
+
+@pytest.mark.parametrize("name", ["tram-urban", "standstill-creep", "regional-tunnel"])
+def test_the_seed_driver_drives_every_shipped_train_within_its_limits(name):
+    sc = load_scenario(name)
+    legs = build_legs(sc, open_line(sc))
+    traj = drive(sc.train, legs, dt_s=DT, driver=sc.driver)
+    for err, stop_err in tracking(traj, legs):
+        assert np.max(np.abs(err)) < 0.7 and np.percentile(np.abs(err), 95) < 0.5
+        assert abs(stop_err) < 0.5
+    assert moving_jerk(traj).max() <= sc.train.jerk_limit_mps3 * 1.02
+    assert traj.a_mps2.min() >= -sc.train.service_brake_mps2 - 0.05
 
 
 def test_same_seed_gives_byte_identical_field_ring_captures(tmp_path):
@@ -168,7 +181,9 @@ def test_driver_table_is_validated():
     }
     sc = scenario_from_dict({**base, "driver": {"kind": "ato-pid", "brake_lag_s": 1.2}})
     assert sc.driver == AtoPidConfig(brake_lag_s=1.2)
-    assert scenario_from_dict({**base, "driver": {"kp_per_s": 0.8}}).driver == DriverConfig(kp_per_s=0.8)
+    assert scenario_from_dict(base).driver == AtoPidConfig()
+    pi = scenario_from_dict({**base, "driver": {"kind": "pi", "kp_per_s": 0.8}})
+    assert pi.driver == DriverConfig(kp_per_s=0.8)
     with pytest.raises(ScenarioError, match="driver.kind 'mpc' unknown"):
         scenario_from_dict({**base, "driver": {"kind": "mpc"}})
     with pytest.raises(ScenarioError, match="driver.brake_lag_s must be > 0"):
@@ -176,7 +191,7 @@ def test_driver_table_is_validated():
     with pytest.raises(ScenarioError, match="traction_saturation"):
         scenario_from_dict({**base, "driver": {"kind": "ato-pid", "traction_saturation": 1.5}})
     with pytest.raises(ScenarioError, match="kp_per_s"):
-        scenario_from_dict({**base, "driver": {"kind": "ato-pid", "kp_per_s": 1.0}})
+        scenario_from_dict({**base, "driver": {"kp_per_s": 1.0}})  # a PI key on the default driver
     # a synthetic run with the seed's driver arrives at its stop
     run = generate(scenario_from_dict({**base, "driver": {"kind": "ato-pid"}}), 1)
     assert any(e[1] == "arrive" for e in run.events)
