@@ -88,7 +88,7 @@ def kernel_params(cfg: AtoPidConfig, base: np.ndarray) -> np.ndarray:
 
 
 @numba.njit(cache=True)
-def _interp(arr, fi, _unused):
+def _interp(arr, fi):
     """Linear interpolation of the grid ``arr`` at the fractional index ``fi`` (clamped to the ends)."""
     n = arr.size
     if fi <= 0.0:
@@ -139,9 +139,9 @@ def ato_leg_kernel(state, params, vp, ap, fg_arr, fc_arr, out_s, out_v, out_a, k
             state[0], state[1], state[2], state[3] = s, v, u_cmd, u
             return n, 2
         # speed reference here; acceleration feed-forward at the preview point (the actuator's delay)
-        v_ref = _interp(vp, x * inv_dx, 0.0) if x < length else 0.0
+        v_ref = _interp(vp, x * inv_dx) if x < length else 0.0
         xp = x + v * preview_s
-        a_ref = _interp(ap, xp * inv_dx, 0.0) if xp < length else -plan_decel
+        a_ref = _interp(ap, xp * inv_dx) if xp < length else -plan_decel
         ix = int(x * inv_dx + 0.5)
         ix = min(max(ix, 0), n_grid - 1)
         fg = fg_arr[ix]
