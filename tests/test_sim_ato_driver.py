@@ -195,3 +195,13 @@ def test_driver_table_is_validated():
     # a synthetic run with the seed's driver arrives at its stop
     run = generate(scenario_from_dict({**base, "driver": {"kind": "ato-pid"}}), 1)
     assert any(e[1] == "arrive" for e in run.events)
+
+
+def test_a_missing_geojson_track_is_a_scenario_error(tmp_path):
+    data = {
+        "track": {"database": "geojson:no-such.geojson"},
+        "journey": {"points": [{"name": "A", "s_m": 10.0, "departure_s": 1.0}, {"name": "B", "s_m": 900.0}]},
+    }
+    sc = scenario_from_dict(data, base_dir=str(tmp_path))
+    with pytest.raises(ScenarioError, match="GeoJSON source .*no-such.geojson.* not found"):
+        database_path(sc)
