@@ -6,10 +6,12 @@ so ``v_{k+1} = v_k + a_k dt`` and ``d_{k+1} = d_k + v_k dt + a_k dt^2 / 2`` (``d
 arc length ``s = s_start + direction * d`` within a leg). A step that would make the speed negative is
 shortened to stop exactly at 0 (``a_k = -v_k / dt``). The truth arrays store ``t_k, s_k, v_k, a_k``.
 
-The driver follows the leg's planned profile in space (``v_ref(x)``, ``a_ff(x) = v dv/dx``) with a
-feedforward + PI speed tracker; the commanded force adds the known resistances, is clipped to the
-traction envelope and the service brake, and its rate is limited by the jerk limit. At a stopping
-point the train dwells until ``max(actual arrival + dwell, scheduled departure)``.
+The driver follows the leg's planned profile in space (``v_ref(x)``, ``a_ff(x) = v dv/dx``). The
+default is the ATO seed's gain-scheduled PID with actuator lag (:mod:`interface_modules.ato_driver`);
+:class:`DriverConfig` selects the earlier feedforward + PI speed tracker (``[driver] kind = "pi"``):
+its commanded force adds the known resistances, is clipped to the traction envelope and the service
+brake, and its rate is limited by the jerk limit (no actuator lag). At a stopping point the train
+dwells until ``max(actual arrival + dwell, scheduled departure)``.
 """
 
 from __future__ import annotations
@@ -21,6 +23,7 @@ import numba
 import numpy as np
 
 from . import dynamics
+from .ato_driver import AtoPidConfig, ato_leg_kernel, kernel_params
 from .errors import SimError
 from .planner import LegPlan
 from .trains import TrainSpec
@@ -159,15 +162,22 @@ def drive(
     dt_s: float,
     tail_s: float = 5.0,
     max_time_s: float | None = None,
-    driver: DriverConfig | None = None,
+    driver: DriverConfig | AtoPidConfig | None = None,
 ) -> Trajectory:
-    """Simulate the train through ``legs`` (see module doc). ``max_time_s`` truncates the run."""
+    """Simulate the train through ``legs`` (see module doc). ``max_time_s`` truncates the run.
+
+    ``driver``: :class:`~interface_modules.ato_driver.AtoPidConfig` (the seed's PIDGS with actuator
+    lag; None: its defaults) or :class:`DriverConfig` (the earlier feedforward + PI driver).
+    """
     if not legs:
         raise SimError("a journey needs at least two stopping points")
-    cfg = driver or DriverConfig()
-    preview_s = (
-        cfg.preview_factor * max(spec.plan_accel_mps2, spec.plan_decel_mps2) / (2.0 * spec.jerk_limit_mps3)
-    )
+    cfg = driver or AtoPidConfig()
+    ato = isinstance(cfg, AtoPidConfig)
+    if ato:
+        preview_s = cfg.preview_s(spec.plan_accel_mps2, spec.plan_decel_mps2, spec.jerk_limit_mps3)
+    else:
+        a_plan = max(spec.plan_accel_mps2, spec.plan_decel_mps2)
+        preview_s = cfg.preview_factor * a_plan / (2.0 * spec.jerk_limit_mps3)  # the original's order
     k_limit = np.iinfo(np.int64).max if max_time_s is None else int(np.ceil(max_time_s / dt_s - 1e-9))
     adhesion = spec.adhesion_coefficient * spec.adhesive_mass_fraction * spec.mass_kg * 9.80665
     chunks_s: list[np.ndarray] = []
@@ -176,7 +186,7 @@ def drive(
     chunks_d: list[np.ndarray] = []
     events: list[tuple[float, str, str]] = []
     k = 0
-    state = np.array([legs[0].plan.s_start_m, 0.0, 0.0])
+    state = np.array([legs[0].plan.s_start_m, 0.0, 0.0, 0.0])  # s, v, commanded force, applied force
     arrived_t = 0.0
     prev_dir = legs[0].plan.direction
     truncated = False
@@ -209,6 +219,7 @@ def drive(
         events.append((k * dt_s, "depart", f"{leg.from_name} (scheduled {leg.departure_s:.1f} s)"))
         state[1] = 0.0
         state[2] = 0.0  # holding brake released
+        state[3] = 0.0
         params = np.array(
             [
                 dt_s,
@@ -217,8 +228,8 @@ def drive(
                 plan.length_m,
                 1.0 / plan.dx_m,
                 preview_s,
-                cfg.kp_per_s,
-                cfg.ki_per_s2,
+                0.0 if ato else cfg.kp_per_s,
+                0.0 if ato else cfg.ki_per_s2,
                 spec.effective_mass_kg,
                 spec.effective_mass_kg * spec.jerk_limit_mps3 * dt_s,
                 dynamics.brake_limit_n(spec),
@@ -232,13 +243,16 @@ def drive(
                 spec.plan_decel_mps2,
             ]
         )
+        if ato:
+            params = kernel_params(cfg, params)
         k_overrun = k + int((plan.run_time_s + cfg.max_leg_overrun_s) / dt_s)
         size = min(k_overrun, k_limit) - k + 2
         out_s, out_v, out_a = np.empty(size), np.empty(size), np.empty(size)
         fg = np.asarray(dynamics.grade_force_n(spec, plan.grade), dtype=float)
         fc = np.asarray(dynamics.curve_resistance_n(spec, plan.curvature_per_m), dtype=float)
         k_start = k
-        n, status = _leg_kernel(
+        kernel = ato_leg_kernel if ato else _leg_kernel
+        n, status = kernel(
             state, params, plan.v_mps, plan.a_ff_mps2, fg, fc, out_s, out_v, out_a, k, k_limit, k_overrun
         )
         chunks_s.append(out_s[:n])

@@ -81,7 +81,8 @@ def simulate_truth(sc: Scenario, track, max_duration_s: float | None = None) -> 
     """The train's truth trajectory for the scenario (seed-independent)."""
     legs = build_legs(sc, track)
     limit = sc.max_duration_s if max_duration_s is None else max_duration_s
-    return drive(sc.train, legs, dt_s=1.0 / sc.truth_rate_hz, tail_s=sc.tail_s, max_time_s=limit)
+    return drive(sc.train, legs, dt_s=1.0 / sc.truth_rate_hz, tail_s=sc.tail_s, max_time_s=limit,
+                 driver=sc.driver)
 
 
 def cant_model(sc: Scenario) -> CantModel | None:

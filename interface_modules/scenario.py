@@ -17,8 +17,10 @@ from pathlib import Path
 from typing import Any
 
 from .asbuilt import AsBuiltConfig
+from .ato_driver import AtoPidConfig
 from .errors import ScenarioError
 from .faults import KIND_SENSOR, Fault
+from .motion import DriverConfig
 from .presets import GPS_PRESETS, IMU_PRESETS, ODOMETER_PRESETS
 from .trains import KMH, TRAIN_PRESETS, TrainSpec
 
@@ -49,7 +51,7 @@ class SegmentConfig:
 class TrackConfig:
     """Which track and line to run on, its tunnels and speed limits."""
 
-    database: str = "default"  #: "default" (bundled database), a .db path, "gtfs:FILE", or "synthetic"
+    database: str = "default"  #: "default" (bundled), a .db path, "gtfs:DIR", "geojson:FILE" or "synthetic"
     line_id: int | None = None  #: line of the database; None: the database's default line
     gtfs_shape_id: str | None = None  #: shape to import for "gtfs:" databases
     line_speed_kmh: float = 50.0  #: line speed [km/h]
@@ -129,6 +131,9 @@ class Scenario:
     control: ModuleConfig
     network: NetworkConfig
     faults: tuple[Fault, ...] = ()
+    #: the driver: AtoPidConfig (``[driver] kind = "ato-pid"``, the default: the ATO seed's gain-scheduled
+    #: PID with actuator lag) or DriverConfig (``kind = "pi"``: the earlier feedforward + PI driver)
+    driver: DriverConfig | AtoPidConfig = dataclasses.field(default_factory=AtoPidConfig)
     source: str = ""  #: file the scenario came from
     base_dir: str = ""  #: directory relative paths are resolved against
 
@@ -180,7 +185,7 @@ def scenario_from_dict(data: dict[str, Any], *, source: str = "<dict>", base_dir
     """Build a scenario from parsed TOML (the same structure as the files)."""
     if not isinstance(data, dict):
         raise ScenarioError("a scenario is a TOML table")
-    _known(data, "", {"scenario", "track", "train", "journey", "sensors", "network", "faults"})
+    _known(data, "", {"scenario", "track", "train", "journey", "sensors", "network", "faults", "driver"})
     head = _table(data, "scenario")
     _known(
         head,
@@ -276,6 +281,7 @@ def scenario_from_dict(data: dict[str, Any], *, source: str = "<dict>", base_dir
             raise ScenarioError(f"faults[{i}] must be a table with a kind")
         fdata = {"sensor": KIND_SENSOR.get(str(f["kind"]), ""), **f}
         faults.append(_dataclass_from(Fault, fdata, f"faults[{i}]"))
+    driver = _driver(_table(data, "driver"))
     scenario = Scenario(
         name=_get(head, "scenario", "name", str, Path(source).stem),
         description=_get(head, "scenario", "description", str, ""),
@@ -294,6 +300,7 @@ def scenario_from_dict(data: dict[str, Any], *, source: str = "<dict>", base_dir
         control=modules["control"],
         network=network,
         faults=tuple(faults),
+        driver=driver,
         source=source,
         base_dir=base_dir,
     )
@@ -480,6 +487,21 @@ def _actual_pairs(data: dict, where: str) -> tuple[tuple[str, float], ...]:
             raise ScenarioError(f"{where}.{key} must be a finite number, got {value!r}")
         pairs.append((str(key), float(value)))
     return tuple(pairs)
+
+
+#: ``[driver] kind`` -> its typed configuration
+DRIVER_KINDS: dict[str, type] = {"pi": DriverConfig, "ato-pid": AtoPidConfig}
+
+
+def _driver(data: dict) -> DriverConfig | AtoPidConfig:
+    data = dict(data)
+    kind = data.pop("kind", "ato-pid")
+    if kind not in DRIVER_KINDS:
+        raise ScenarioError(f"driver.kind {kind!r} unknown (known: {', '.join(DRIVER_KINDS)})")
+    try:
+        return _dataclass_from(DRIVER_KINDS[kind], data, "driver")
+    except ValueError as exc:
+        raise ScenarioError(str(exc)) from None
 
 
 def _zone(data: Any, where: str, needs_limit: bool) -> Zone:

@@ -8,6 +8,9 @@
   directory); the shape ``gtfs_shape_id`` is imported with the track_db GTFS importer into a cache
   database (``$SFA_CACHE_DIR`` or ``~/.cache/sfa/tracks``) on first use, keyed by the SHA-256 of the
   feed files and the shape id, and reused afterwards (the build is atomic: written then renamed);
+- ``"geojson:FILE"``: a GeoJSON source shipped with the scenarios (``FILE`` relative to the scenario's
+  directory), imported with the track_db GeoJSON importer (``sfa track import``'s path) into the same
+  cache, keyed by the SHA-256 of the file (the field ring: ``data/field-ring/field-ring.geojson``);
 - anything else: a path to a track database (relative to the scenario's directory).
 """
 
@@ -41,6 +44,8 @@ def database_path(sc: Scenario) -> Path | None:
         return Path(default_database_path())
     if ref.startswith("gtfs:"):
         return _gtfs_database(sc, Path(sc.base_dir) / ref[5:])
+    if ref.startswith("geojson:"):
+        return _geojson_database(Path(sc.base_dir) / ref[8:])
     path = Path(ref)
     if not path.is_absolute():
         path = Path(sc.base_dir) / path
@@ -75,14 +80,40 @@ def _gtfs_database(sc: Scenario, source: Path) -> Path:
     for f in files:
         h.update(f.name.encode())
         h.update(f.read_bytes())
-    target = cache_dir() / f"{source.name}-{h.hexdigest()[:16]}.db"
+    shape = sc.track.gtfs_shape_id
+    return _cached(source, h.hexdigest(), lambda tmp: build_gtfs_database(source, shape, tmp))
+
+
+def _geojson_database(source: Path) -> Path:
+    if not source.is_file():
+        raise ScenarioError(f"GeoJSON source {str(source)!r} not found")
+    digest = hashlib.sha256(b"geojson\0" + source.read_bytes()).hexdigest()
+    return _cached(source, digest, lambda tmp: build_source_database(source, "geojson", tmp))
+
+
+def _cached(source: Path, digest: str, build) -> Path:
+    """The cache database for ``source`` with ``digest``, built atomically by ``build(tmp)`` if missing."""
+    target = cache_dir() / f"{source.name}-{digest[:16]}.db"
     if target.is_file():
         return target
     target.parent.mkdir(parents=True, exist_ok=True)
     tmp = target.with_suffix(f".tmp{os.getpid()}")
-    build_gtfs_database(source, sc.track.gtfs_shape_id, tmp)
+    build(tmp)
     os.replace(tmp, target)
     return target
+
+
+def build_source_database(source: Path, fmt: str, target: Path) -> None:
+    """Import every line of ``source`` (format ``fmt``, as ``sfa track import`` does) into ``target``."""
+    from track_db.build import create_database
+    from track_db.errors import TrackDbError
+    from track_db.importers import ImportOptions, load_source
+
+    try:
+        batch = load_source(source, fmt, ImportOptions())
+        create_database(target, batch.lines, stops=batch.stops, overwrite=True)
+    except TrackDbError as exc:
+        raise SimError(f"cannot build the track database from {str(source)!r}: {exc}") from exc
 
 
 def build_gtfs_database(source: Path, shape_id: str, target: Path) -> None:

@@ -252,6 +252,7 @@ def test_bench_quick_writes_a_complete_table(tmp_path):
         ("accuracy", "coverage"),
         ("generalisation", "rtk", "p95"),
         ("generalisation", "long-outage", "coverage"),
+        ("generalisation", "field-ring", "p95"),
         ("replay", "filter core alone"),
         ("replay", "C reference"),
         ("replay", "fast replay end to end"),

@@ -14,6 +14,7 @@ from interface_modules.scenario import load_scenario, scenario_from_dict, scenar
 from interface_modules.tracks import database_path, open_line
 
 SHIPPED = [
+    "field-ring",
     "regional-long",
     "regional-tunnel",
     "standstill-creep",

@@ -88,6 +88,9 @@ FAMILIES: tuple[Family, ...] = (
            lambda r: _sensors(r, _standalone(r)), gps_rate_hz=10.0),
     Family("long-outage", "tram-urban", "Jena tram with a 700 m GNSS outage (1100-1800 m)",
            lambda r: _sensors(r, _standalone(r)), tunnels=((1100.0, 1800.0),)),
+    # last, so the other families keep their draws (the draw's stream is the family's index)
+    Family("field-ring", "field-ring", "seed field ring: 5.7 km loop, 3 stops, <= 40 km/h, ATO PIDGS driver, "
+           "regional vehicle, standalone GNSS 0.5-1.5 m", lambda r: _sensors(r, _standalone(r))),
 )
 
 
