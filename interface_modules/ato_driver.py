@@ -31,6 +31,8 @@ from dataclasses import dataclass
 import numba
 import numpy as np
 
+from .dynamics import train_step
+
 
 @dataclass(frozen=True)
 class AtoPidConfig:
@@ -175,15 +177,8 @@ def ato_leg_kernel(state, params, vp, ap, fg_arr, fc_arr, out_s, out_v, out_a, k
         alpha = alpha_t if u_cmd >= 0.0 else alpha_b
         du = (u_cmd - u) * alpha
         u += min(max(du, -jerk_df), jerk_df)
-        if v <= 0.0:
-            drive_f = u - fg - a_davis - fc
-            a = drive_f / m_eff if drive_f > 0.0 else 0.0
-        else:
-            a = (u - (a_davis + b_davis * v + c_davis * v * v) - fg - fc) / m_eff
-        v_next = v + a * dt
-        if v_next < 0.0:
-            a = -v / dt
-            v_next = 0.0
+        # M_eff dv/dt = u - Davis - grade - curve; at rest the brakes hold the train (no rollback)
+        a, v_next = train_step(u, v, fg, fc, a_davis, b_davis, c_davis, m_eff, dt)
         out_s[n] = s
         out_v[n] = v
         out_a[n] = a

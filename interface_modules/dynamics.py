@@ -10,6 +10,7 @@ All functions accept floats or numpy arrays.
 
 from __future__ import annotations
 
+import numba
 import numpy as np
 
 from .presets import G_MPS2
@@ -91,3 +92,19 @@ def acceleration_mps2(
         return drive / m_eff if drive > 0.0 else 0.0
     f_davis = spec.davis_a_n + spec.davis_b_n_per_mps * v + spec.davis_c_n_per_mps2 * v * v
     return (force_n - f_davis - grade_force - curve_force) / m_eff
+
+
+@numba.njit(cache=True, inline="always")
+def train_step(u, v, fg, fc, a_davis, b_davis, c_davis, m_eff, dt):
+    """One Euler step of M_eff dv/dt = u - Davis(v) - grade - curve [N]: (acceleration [m/s^2], next
+    speed [m/s]). At rest the brakes hold the train (no rollback); the speed never goes below zero."""
+    if v <= 0.0:
+        drive_f = u - fg - a_davis - fc
+        a = drive_f / m_eff if drive_f > 0.0 else 0.0
+    else:
+        a = (u - (a_davis + b_davis * v + c_davis * v * v) - fg - fc) / m_eff
+    v_next = v + a * dt
+    if v_next < 0.0:
+        a = -v / dt
+        v_next = 0.0
+    return a, v_next

@@ -24,6 +24,7 @@ import numpy as np
 
 from . import dynamics
 from .ato_driver import AtoPidConfig, ato_leg_kernel, kernel_params
+from .dynamics import train_step
 from .errors import SimError
 from .planner import LegPlan
 from .trains import TrainSpec
@@ -137,15 +138,7 @@ def _leg_kernel(state, params, vp, ap, fg_arr, fc_arr, out_s, out_v, out_a, k0, 
             integ += err * dt
         u_prev = u
         # M_eff dv/dt = u - Davis - grade - curve; at rest the brakes hold the train (no rollback)
-        if v <= 0.0:
-            drive_f = u - fg - a_davis - fc
-            a = drive_f / m_eff if drive_f > 0.0 else 0.0
-        else:
-            a = (u - (a_davis + b_davis * v + c_davis * v * v) - fg - fc) / m_eff
-        v_next = v + a * dt
-        if v_next < 0.0:
-            a = -v / dt
-            v_next = 0.0
+        a, v_next = train_step(u, v, fg, fc, a_davis, b_davis, c_davis, m_eff, dt)
         out_s[n] = s
         out_v[n] = v
         out_a[n] = a
