@@ -13,6 +13,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from sfa import gnss_noise
 from sfa import kernels as K
 from sfa import layout as L
 from sfa.config import FilterConfig
@@ -342,6 +343,9 @@ class TrackFilter:
             east, north = float(east), float(north)
         code = K.O_INVALID
         accepted_by_any = False
+        rep_aux = self._hyps[self._reported].aux
+        for i, h in enumerate(self._hyps):  # one GNSS model, the reported hypothesis's (gnss_noise.share)
+            gnss_noise.share(h.aux, rep_aux, i == self._reported)
         for i, h in enumerate(self._hyps):
             c = K.step_gps(h.x, h.P, h.aux, h.cnt, self._cfg, h.line.s_m, h.line.east_m, h.line.north_m,
                            h.line.grade, t, east, north, sigma_h, fq)

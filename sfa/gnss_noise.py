@@ -34,6 +34,7 @@ import math
 from numba import njit
 
 from sfa.layout import (
+    A_AD_FREEZE,
     A_AD_HI,
     A_AD_HIST,
     A_AD_HN,
@@ -45,6 +46,7 @@ from sfa.layout import (
     A_GM_SIG,
     A_GM_TAU,
     A_GW_SIG,
+    A_WK_PHT,
     AD_ENTRY,
     AD_HIST,
     AD_HIST_SPACING_S,
@@ -184,9 +186,10 @@ def fit(aux, cfg):
 def observe(aux, cfg, t, c, ne, nn, s, sigma_h):
     """One fix's cross-track residual c [m] at time t [s], the track normal (ne, nn) and arc length s
     [m] there, and the reported sigma_h [m] (NaN or <= 0: not reported) into the statistics, then
-    refit. No-op when adaptation is off (K_AD_WINDOW <= 0)."""
+    refit. No-op when adaptation is off (K_AD_WINDOW <= 0) or frozen (A_AD_FREEZE: several hypotheses
+    are alive; they are compared under the one model they inherited)."""
     window = cfg[K_AD_WINDOW]
-    if window <= 0.0 or not (math.isfinite(c) and math.isfinite(t)):
+    if window <= 0.0 or aux[A_AD_FREEZE] != 0.0 or not (math.isfinite(c) and math.isfinite(t)):
         return
     # seconds of data this residual stands for: the time since the previous one, at most 1 s
     h = 1.0 if math.isnan(aux[A_AD_T]) else min(max(t - aux[A_AD_T], 0.0), 1.0)
@@ -220,6 +223,18 @@ def observe(aux, cfg, t, c, ne, nn, s, sigma_h):
         aux[A_AD_HI] = float((int(aux[A_AD_HI]) + 1) % AD_HIST)
         aux[A_AD_HN] = float(min(n_hist + 1, AD_HIST))
     fit(aux, cfg)
+
+
+@njit(cache=True, _nrt=False, error_model="numpy")
+def share(dst, src, learns):
+    """Before a GNSS fix with several hypotheses alive: every one uses the reported hypothesis's
+    model and statistics (``src``), and only that one (``learns``) learns from the fix. The model is
+    the receiver's, not a branch's: a branch on a wrong track 3 m from the right one would otherwise
+    widen its own model until its fixes fit, and win the comparison the one model must decide."""
+    if not learns:
+        for i in range(A_GM_SIG, A_WK_PHT):
+            dst[i] = src[i]
+    dst[A_AD_FREEZE] = 0.0 if learns else 1.0
 
 
 @njit(cache=True, inline="always", _nrt=False, error_model="numpy")

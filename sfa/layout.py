@@ -129,7 +129,10 @@ A_AD_W = A_AD_L + AD_NMOM  #: weights [s]
 AD_ENTRY = 5
 A_AD_HN = A_AD_W + AD_NMOM
 A_AD_HI = A_AD_HN + 1
-A_AD_HIST = A_AD_HI + 1
+#: 1 while this hypothesis's statistics must not learn: several hypotheses are alive and it is not the
+#: reported one (``gnss_noise.share``, called by TrackFilter and the fast replay before each GNSS fix)
+A_AD_FREEZE = A_AD_HI + 1
+A_AD_HIST = A_AD_FREEZE + 1
 AD_HIST = 45  #: history entries (covers AD_HIST x AD_HIST_SPACING_S seconds, beyond the longest lag)
 AD_HIST_SPACING_S = 1.0  #: spacing of the history entries [s]
 #: Scratch for the updates (no meaning between calls): P H' (two columns of NX) and the gain K (two

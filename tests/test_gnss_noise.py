@@ -122,3 +122,18 @@ def test_restart_forgets_pairs_but_keeps_the_model():
     model = _model(aux)
     G.restart(aux)
     assert aux[L.A_AD_HN] == 0.0 and _model(aux) == model
+
+
+def test_frozen_statistics_do_not_learn():
+    """While several hypotheses are alive (A_AD_FREEZE, set by TrackFilter and the fast replay before
+    each fix), nothing is learnt: a branch on a wrong track must not widen its own model to fit."""
+    cfg = _cfg()
+    aux = np.zeros(L.NAUX)
+    G.reset(aux, cfg)
+    aux[L.A_AD_FREEZE] = 1.0
+    before = aux.copy()
+    _feed(aux, cfg, _receiver(300, 1.0, 2.0, 10.0, 1.0, seed=2) + 3.0, 1.0)  # a parallel track 3 m away
+    np.testing.assert_array_equal(aux, before)
+    aux[L.A_AD_FREEZE] = 0.0
+    _feed(aux, cfg, _receiver(300, 1.0, 2.0, 10.0, 1.0, seed=2) + 3.0, 1.0)
+    assert aux[L.A_GM_SIG] > 1.0  # unfrozen, the same fixes widen it (from the preset's 0.6 m)

@@ -32,6 +32,7 @@ import math
 import numpy as np
 from numba import njit
 
+from sfa import gnss_noise
 from sfa import kernels as K
 from sfa import layout as L
 
@@ -267,6 +268,9 @@ def run_segment(
         rep = ns[1]
         if math.isfinite(ti) and ti - AUX[order[rep], L.A_T_STATE] > jump_limit:
             return i, STOP_BEFORE  # TrackFilter._is_time_jump
+        if k == 3:  # one GNSS model, the reported hypothesis's (as TrackFilter._process_gps)
+            for j in range(nh):
+                gnss_noise.share(AUX[order[j]], AUX[order[rep]], j == rep)
         snap = k != 1 and nh > 1  # only a score can need undoing
         if snap:
             for j in range(nh):

@@ -172,7 +172,7 @@ static void gn_pair(double *aux, int i, double c, double ne, double nn, double s
 static void gn_observe(double *aux, const double *cfg, double t, double c, double ne, double nn, double s,
                        double sigma_h) {
     double window = cfg[K_AD_WINDOW];
-    if (window <= 0.0 || !(isfinite(c) && isfinite(t))) return;
+    if (window <= 0.0 || aux[A_AD_FREEZE] != 0.0 || !(isfinite(c) && isfinite(t))) return;
     double h = isnan(aux[A_AD_T]) ? 1.0 : gn_min(gn_max(t - aux[A_AD_T], 0.0), 1.0);
     if (h <= 0.0) return;
     aux[A_AD_T] = t;
