@@ -15,13 +15,15 @@ in the horizontal, ``c`` has the per-axis statistics:
     E[c(t) c(t - L)] = sigma_g^2 exp(-L / tau)  (L > 0),   E[c^2] = sigma_g^2 + sigma_w^2
 
 (the map's own lateral error adds to both; it is counted as GNSS error, on the safe side).
-Moments at the lag of the previous fix and at ``AD_LAGS_S`` are kept as weighted means with a memory
-of ``gps_adaptive_window_s`` seconds, starting from the preset's model with a weight of
-``gps_adaptive_prior_s`` seconds of data; each residual is clipped at 3 sigma of the current lag-0
-moment (a multipath jump widens the model, it does not blow it up). After each fix the model is
-refitted: ``tau`` by least squares over a logarithmic grid, ``sigma_g^2`` in closed form for it, and
-``sigma_w^2 = E[c^2] - sigma_g^2``. Neither sigma goes below a quarter of the preset's (an interval
-too narrow is a safety defect; the floor keeps one noisy stretch from collapsing it).
+The moments at lag 0 and at ``AD_LAGS_S`` (pairs at least MIN_PAIR_DISTANCE_M apart along the
+track) are kept as weighted means with a memory of ``gps_adaptive_window_s`` seconds, starting from
+the preset's model with a weight of ``gps_adaptive_prior_s`` seconds of data; each residual is
+clipped at 3 sigma of the current lag-0 moment (a multipath jump widens the model, it does not blow
+it up). After each fix the model is refitted: ``tau`` by least squares over a logarithmic grid,
+``sigma_g^2`` in closed form for it, and ``sigma_w^2 = E[c^2] - sigma_g^2``, within the floors
+(FLOOR_GM, FLOOR_WHITE times the preset's: an interval too narrow is a safety defect) and the ceiling
+(CEILING times the mean reported sigma_h). With several hypotheses alive, ``share`` gives them the
+reported one's model and lets only that one learn.
 
 With ``gps_adaptive_window_s = 0`` the preset's model is used unchanged and these functions only
 copy it into ``aux``. Slots: ``sfa.layout`` (A_GM_SIG .. A_AD_HIST).
@@ -151,8 +153,8 @@ def _pair(aux, i, c, ne, nn, s, b, t, h, window):
 def fit(aux, cfg):
     """sigma_g, tau, sigma_w from the moments: tau by least squares over the grid, each moment weighted
     by its seconds of data (a lag the train never spends 25 m in keeps its prior's small weight),
-    sigma_g^2 in closed form for each tau, sigma_w^2 = E[c^2] - sigma_g^2; floors at FLOOR times the
-    preset's sigmas, ceilings at CEILING times the mean reported sigma_h."""
+    sigma_g^2 in closed form for each tau, sigma_w^2 = E[c^2] - sigma_g^2; floors at FLOOR_GM and
+    FLOOR_WHITE times the preset's sigmas, ceilings at CEILING times the mean reported sigma_h."""
     best = math.inf
     best_tau = cfg[K_GM_TAU]
     best_s2 = 0.0

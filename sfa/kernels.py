@@ -129,6 +129,7 @@ from sfa.layout import (
     FAULT_REASONS,
     GE,
     GN,
+    K_AD_WINDOW,
     K_CURV_CORR_M,
     K_CURV_REG_M,
     K_CURV_REL,
@@ -1339,9 +1340,9 @@ def step_gps(x, P, aux, cnt, cfg, ts, te, tn, tg, t, east, north, sigma_h, fix_q
     tnorm = math.sqrt(de * de + dn * dn)
     ue = de / tnorm
     un = dn / tnorm
-    # the fix's distance from the line into the GNSS error statistics (sfa.gnss_noise)
-    c_x, n_e, n_n, s_foot = cross_track(ts, te, tn, x[S] - x[V] * dl, east, north)
-    gnss_noise.observe(aux, cfg, t, c_x, n_e, n_n, s_foot, sigma_h)
+    if cfg[K_AD_WINDOW] > 0.0:  # the fix's distance from the line into the GNSS statistics (gnss_noise)
+        c_x, n_e, n_n, s_foot = cross_track(ts, te, tn, x[S] - x[V] * dl, east, north)
+        gnss_noise.observe(aux, cfg, t, c_x, n_e, n_n, s_foot, sigma_h)
     # white noise: the model's white sigma, scaled up when the receiver reports a worse sigma_h
     sw = gnss_noise.white_sigma(aux, sigma_h)
     # R = sw^2 I + sigma_lat^2 n n' (n = unit normal to the track: digitisation/lateral offset)

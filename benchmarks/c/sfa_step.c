@@ -1044,10 +1044,11 @@ static long step_gps(double *x, double *P, double *aux, long *cnt, const double 
     y[1] = north - hn;
     double tnorm = sqrt(de * de + dn * dn);
     double ue = de / tnorm, un = dn / tnorm;
-    /* the fix's distance from the line into the GNSS error statistics (sfa.gnss_noise) */
-    double n_e, n_n, s_foot;
-    double c_x = cross_track(ts, te, tn, nv, x[S] - x[V] * dl, east, north, &n_e, &n_n, &s_foot);
-    gn_observe(aux, cfg, t, c_x, n_e, n_n, s_foot, sigma_h);
+    if (cfg[K_AD_WINDOW] > 0.0) { /* the fix's distance from the line into the GNSS statistics */
+        double n_e, n_n, s_foot;
+        double c_x = cross_track(ts, te, tn, nv, x[S] - x[V] * dl, east, north, &n_e, &n_n, &s_foot);
+        gn_observe(aux, cfg, t, c_x, n_e, n_n, s_foot, sigma_h);
+    }
     double sw = gn_white_sigma(aux, sigma_h);
     double sl2 = sq(cfg[K_TRACK_LAT]);
     R[0] = sw * sw + sl2 * un * un;
