@@ -387,7 +387,7 @@ class Pipeline:
             self._recheck_at = None
             self._note(self.vital.observe(self._status or 0, self._reasons, now), now)
             return []
-        est = self.filter.estimate(at_s=t)
+        est = self.filter.estimate(at_s=t, propagate=True)
         if self._init_now is not None:
             rate, margin = self.cfg.clock.rate, self.cfg.vital.timeout_margin_s
             for name, mod in self.modules.items():

@@ -183,8 +183,13 @@ class TrackFilter:
             return self._process_init(meas)
         raise MeasurementTypeError(f"not a filter measurement: {type(meas).__name__}")
 
-    def estimate(self, at_s: float | None = None) -> Estimate:
-        """The best hypothesis's estimate at the state time; ``at_s`` (later) only ages the time-outs."""
+    def estimate(self, at_s: float | None = None, propagate: bool = False) -> Estimate:
+        """The best hypothesis's estimate at the state time; ``at_s`` (later) only ages the time-outs.
+
+        ``propagate``: the estimate at ``at_s`` itself, the state predicted there (the process model
+        alone, its covariance grown with it) on a copy, the filter left as it is. For an announcement
+        between measurements (a silent sensor timed out): the position now, with the interval that
+        prediction earns, not the last measurement's position under a new date."""
         if not self._hyps:
             return Estimate(
                 epoch_s=math.nan, arc_length_m=math.nan, speed_mps=math.nan, sigma_s_m=math.inf,
@@ -196,6 +201,11 @@ class TrackFilter:
         d = h.direction
         t = float(h.aux[L.A_T_STATE])
         t_eval = t if at_s is None or not math.isfinite(at_s) else max(t, float(at_s))
+        if propagate and t_eval > t:
+            h = h.clone()
+            K.predict_to(h.x, h.P, h.aux, h.cnt, self._cfg, h.line.s_m, h.line.grade, t_eval)
+            h.sync(self._cfg)
+            t = t_eval
         code, bits, sigma = K.status_of(h.x, h.P, h.aux, self._cfg, t_eval)
         s = float(h.x[L.S])
         lat, lon = self._latlon(h.line, s)
