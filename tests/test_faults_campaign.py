@@ -277,3 +277,25 @@ def test_campaign_jobs_below_one_is_a_one_line_error_naming_it(jobs, tmp_path, c
     err = capsys.readouterr().err
     assert err == f"sfa faults: error: --jobs must be >= 1, got {jobs}\n"
     assert not any(tmp_path.iterdir())  # nothing was run
+
+
+def test_seeded_repetitions_pool_their_figures_and_counters(tmp_path):
+    """``seeds = 3``: three independent runs (simulator and link seeds + k), the row's figures over
+    all of them: outputs and injected/counted losses add up, each run's estimates against its own
+    truth (no error across two runs' seam)."""
+    # duplicates, not losses: a lost GROUND TRUTH (sent once, at the start) leaves a run uninitialised
+    row = {"name": "dups", "input_link": {"duplicate": 0.05},
+           "expect": {"duplicates_match": True, "max_m": 50.0}}
+    spec = campaign({**row, "seeds": 3}).scenarios[0]
+    assert [spec.repetition(k).seed for k in range(3)] == [spec.seed, spec.seed + 1, spec.seed + 2]
+    assert [spec.repetition(k).base["scenario"]["seed"] for k in range(3)] == [3, 4, 5]
+    pooled = run_scenario(spec, "replay", str(tmp_path / "p"))
+    singles = [run_scenario(spec.repetition(k), "replay", str(tmp_path / f"s{k}")) for k in range(3)]
+    assert pooled["verdict"] == "PASS", pooled
+    assert pooled["fresh_outputs"] == sum(r["fresh_outputs"] for r in singles)
+    assert pooled["dup_inj"] == pooled["dup_det"] == sum(r["dup_det"] for r in singles) > 0
+    assert float(pooled["max_m"]) == max(float(r["max_m"]) for r in singles)
+    assert len({r["dup_det"] for r in singles}) > 1  # the repetitions really differ
+    assert pooled["notes"].startswith("3 seeds pooled")
+    with pytest.raises(FaultConfigError, match="seeds"):
+        campaign({**row, "seeds": 0})

@@ -253,3 +253,90 @@ def _checks(row, obs, expect, acc, fault_cov, reasons, deg, rec) -> dict[str, bo
             else:
                 out[key] = le(value, expect[key])
     return out
+
+
+def _summed(values: list[Any]) -> Any:
+    """Counters of several runs added up (nested dicts of numbers; anything else: the first run's)."""
+    first = values[0]
+    if isinstance(first, dict):
+        keys = {k for v in values if isinstance(v, dict) for k in v}
+        return {k: _summed([v.get(k, 0) for v in values if isinstance(v, dict)]) for k in sorted(keys)}
+    if isinstance(first, (int, float)) and not isinstance(first, bool):
+        return sum(v for v in values if isinstance(v, (int, float)) and not isinstance(v, bool))
+    return first
+
+
+def pool(runs: list[Observation]) -> Observation:
+    """Independent repetitions of one row as one observation: the figures are then the pooled ones.
+
+    Repetition k is laid out ``k * span`` seconds after the first, on both its sensor time (truth,
+    estimates, scenario start) and its run time (arrivals, link transitions, blackouts, fault
+    windows), so every time-relative figure keeps its meaning; counters add up. ``simulated_s`` is
+    the total.
+    """
+    if len(runs) == 1:
+        return runs[0]
+    span = 10.0 ** math.ceil(math.log10(max(r.simulated_s for r in runs) + 1e3))
+    first = runs[0]
+
+    def cat(get) -> np.ndarray:
+        return np.concatenate([np.asarray(get(r, k), dtype=float) for k, r in enumerate(runs)])
+
+    def epoch_shift(r: Observation, k: int) -> float:  # sensor time of repetition k
+        return first.start_epoch_s - r.start_epoch_s + k * span
+
+    def windows(get) -> tuple[tuple[float, float], ...]:
+        return tuple((a + k * span, b) for k, r in enumerate(runs) for a, b in get(r))
+
+    status = None if any(r.fresh_status is None for r in runs) else np.concatenate(
+        [np.asarray(r.fresh_status) for r in runs])
+    reasons = None if any(r.fresh_reasons is None for r in runs) else [
+        x for r in runs for x in (r.fresh_reasons or [])]
+    return Observation(
+        name=first.name, mode=first.mode, simulated_s=sum(r.simulated_s for r in runs),
+        # each run's truth fenced by NaN just outside it: an estimate dated outside its own run's truth
+        # gets no error (as accuracy() drops it from one run), not one across two runs' seam
+        truth_epoch=cat(lambda r, k: _fenced(r.truth_epoch, 1e-6) + epoch_shift(r, k)),
+        truth_arc=cat(lambda r, k: np.concatenate([[np.nan], r.truth_arc, [np.nan]])),
+        start_epoch_s=first.start_epoch_s,
+        fresh_arrival=cat(lambda r, k: r.fresh_arrival + k * span),
+        fresh_epoch=cat(lambda r, k: r.fresh_epoch + epoch_shift(r, k)),
+        fresh_arc=cat(lambda r, k: r.fresh_arc), fresh_lo=cat(lambda r, k: r.fresh_lo),
+        fresh_hi=cat(lambda r, k: r.fresh_hi), fresh_age=cat(lambda r, k: r.fresh_age),
+        fresh_reasons=reasons,
+        metrics=_summed([r.metrics for r in runs]),
+        link_transitions=[(t + k * span, s) for k, r in enumerate(runs) for t, s in r.link_transitions],
+        input_proxy=_summed([r.input_proxy for r in runs]),
+        output_proxy=_summed([r.output_proxy for r in runs]),
+        input_blackouts=windows(lambda r: r.input_blackouts),
+        output_blackouts=windows(lambda r: r.output_blackouts),
+        sensor_fault_windows=[(a + k * span, b + k * span) for k, r in enumerate(runs)
+                              for a, b in r.sensor_fault_windows],
+        crashes=sum(r.crashes for r in runs),
+        crash_detail="".join(r.crash_detail for r in runs),
+        memory_growth_mb=_max_or_none([r.memory_growth_mb for r in runs]),
+        latency_p99_ms=_max_or_none([r.latency_p99_ms for r in runs]),
+        latency_delta_ms=_max_or_none([r.latency_delta_ms for r in runs]),
+        reasons_seen=set().union(*(r.reasons_seen for r in runs)),
+        wall_s=sum(r.wall_s for r in runs),
+        notes=[f"{len(runs)} seeds pooled (p95/max/coverage: " + ", ".join(_brief(r) for r in runs) + ")"]
+        + [n for r in runs for n in r.notes],
+        corruption=any(r.corruption for r in runs),
+        auth=_summed([r.auth for r in runs]) if all(r.auth for r in runs) else {},
+        fresh_status=status,
+    )
+
+
+def _max_or_none(values: list[float | None]) -> float | None:
+    got = [v for v in values if v is not None]
+    return max(got) if got else None
+
+
+def _brief(r: Observation) -> str:
+    a = accuracy(r.fresh_epoch, r.fresh_arc, r.truth_epoch, r.truth_arc, r.fresh_lo, r.fresh_hi)
+    return f"{_fmt(a.p95_m)}/{_fmt(a.max_m)}/{_fmt(a.coverage, 3)}"
+
+
+def _fenced(epoch: np.ndarray, eps: float) -> np.ndarray:
+    e = np.asarray(epoch, dtype=float)
+    return np.concatenate([[e[0] - eps], e, [e[-1] + eps]])

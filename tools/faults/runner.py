@@ -17,7 +17,7 @@ from typing import Any
 import numpy as np
 
 from tools.faults.errors import CampaignError, ModeUnsupported
-from tools.faults.evaluate import Observation, evaluate
+from tools.faults.evaluate import Observation, evaluate, pool
 from tools.faults.spec import ScenarioSpec
 
 
@@ -135,13 +135,21 @@ def run_scenario(spec: ScenarioSpec, mode: str, out_dir: str) -> dict[str, Any]:
     t0 = time.perf_counter()
     try:
         if mode == "replay":
-            obs = run_replay(spec, out)
+            run = run_replay
         elif mode == "live":
             from tools.faults.live import run_live
 
-            obs = run_live(spec, out)
+            run = run_live
         else:
             raise CampaignError(f"unknown mode {mode!r} (replay or live)")
+        if spec.seeds == 1:
+            obs = run(spec, out)
+        else:  # independent repetitions, pooled: each keeps its own directory
+            runs = []
+            for k in range(spec.seeds):
+                (out / f"seed{k}").mkdir(exist_ok=True)
+                runs.append(run(spec.repetition(k), out / f"seed{k}"))
+            obs = pool(runs)
         obs.wall_s = time.perf_counter() - t0
         row = evaluate(obs, spec.expect)
     except ModeUnsupported as exc:
@@ -158,10 +166,10 @@ def run_scenario(spec: ScenarioSpec, mode: str, out_dir: str) -> dict[str, Any]:
 def wall_budget_s(spec: ScenarioSpec, mode: str) -> float:
     """Wall time a scenario may take before it counts as stalled [s] (``timeout_s`` overrides)."""
     if spec.timeout_s is not None:
-        return spec.timeout_s
+        return spec.seeds * spec.timeout_s
     if mode == "live":
-        return spec.duration_s / spec.speed + 300.0
-    return 120.0 + 2.0 * spec.duration_s
+        return spec.seeds * (spec.duration_s / spec.speed + 300.0)
+    return spec.seeds * (120.0 + 2.0 * spec.duration_s)
 
 
 def _child(spec: ScenarioSpec, mode: str, out_dir: str) -> None:  # pragma: no cover - runs in a child
