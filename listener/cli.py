@@ -43,6 +43,9 @@ def _overrides(args: argparse.Namespace) -> list[str]:
 
 
 def run(args: argparse.Namespace) -> int:
+    from sfa import engine
+
+    engine.prefer_compiled()  # before the kernels are imported: no numba, no compile (sfa.engine)
     from listener.config import load_config
     from listener.errors import ConfigError
     from listener.jsonlog import JsonLogger
