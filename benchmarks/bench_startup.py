@@ -71,7 +71,8 @@ def _status_kib(pid: int, key: str) -> int | None:
 
 
 def start_once(packets, cache_base: Path, tmp: Path, seconds: float, engine: str = "auto",
-               timeout_s: float = 180.0, label: str = "run") -> dict:
+               timeout_s: float = 180.0, label: str = "run", track: str | None = None,
+               sets: tuple[str, ...] = ()) -> dict:
     """Spawn ``sfa listen`` with its numba cache under ``cache_base``, stream ``packets`` at 1x from
     the moment its port is bound, and time its start; returns the figures (seconds since spawn)."""
     from tools.processes import free_udp_port, listen_argv, terminate
@@ -80,7 +81,7 @@ def start_once(packets, cache_base: Path, tmp: Path, seconds: float, engine: str
     obcu = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
     obcu.bind(("127.0.0.1", 0))
     obcu.settimeout(0.05)
-    argv = listen_argv(lport, obcu.getsockname()[1], "log.metrics_interval_s=1000")
+    argv = listen_argv(lport, obcu.getsockname()[1], "log.metrics_interval_s=1000", *sets, track=track)
     env = dict(os.environ)
     env["SFA_ENGINE"] = engine
     env["SFA_NUMBA_CACHE_BASE"] = str(cache_base)
@@ -175,8 +176,13 @@ def measure(scenario: str, seconds: float, repeats: int, log=print) -> dict[str,
     """``repeats`` rounds of the three starts; every round has its own fresh cache directories."""
     from interface_modules.offline import generate
     from interface_modules.scenario import load_scenario
+    from interface_modules.tracks import database_path
 
-    run = generate(load_scenario(scenario), max_duration_s=seconds + 30.0)
+    sc = load_scenario(scenario)
+    run = generate(sc, max_duration_s=seconds + 30.0)
+    track = str(database_path(sc))  # the scenario's network and presets, as the soak runs it
+    sets = (f"filter.odometer={sc.odometer.preset}", f"filter.imu={sc.imu.preset}",
+            f"filter.gps={sc.gps.preset}")
     out: dict[str, list[dict]] = {key: [] for key, *_ in STARTS}
     with tempfile.TemporaryDirectory(prefix="sfa-startup-") as tmp_name:
         tmp = Path(tmp_name)
@@ -187,7 +193,8 @@ def measure(scenario: str, seconds: float, repeats: int, log=print) -> dict[str,
                     cache = tmp / f"cache-{key}-{k}"
                     cache.mkdir()
                 log(f"startup: {what}, run {k + 1}/{repeats}")
-                out[key].append(start_once(run.packets, cache, tmp, seconds, engine=mode, label=f"{key}-{k}"))
+                out[key].append(start_once(run.packets, cache, tmp, seconds, engine=mode, label=f"{key}-{k}",
+                                           track=track, sets=sets))
     return out
 
 

@@ -21,8 +21,10 @@ A kernel called from Python that the extension does not export (a new one not ye
 line on stderr, :func:`active` says why) and it runs there.
 
 ``SFA_ENGINE`` overrides the choice: ``jit`` (always the JIT, the previous behaviour, e.g. for the
-start-up benchmark's comparison), ``compiled`` (the compiled engine wherever it is available), unset
-or ``auto`` (compiled only where :func:`prefer_compiled` was called). ``SFA_ENGINE_DIR`` names a
+start-up benchmark's comparison), ``compiled`` (the compiled engine in every process, and required:
+``sfa listen`` refuses to start without it, as the systemd unit asks, whose memory limit a JIT
+compile would exceed), unset or ``auto`` (compiled where :func:`prefer_compiled` was called and the
+engine is there, else the JIT). ``SFA_ENGINE_DIR`` names a
 directory searched before the package's own for the extension (tests build one there).
 
 Standard library only at import: this module is imported by ``sfa listen`` before numpy.
@@ -146,6 +148,11 @@ def prefer_compiled() -> bool:
     if _state["mode"] is None:
         _state["preferred"] = True
     return _mode() == "compiled"
+
+
+def required() -> bool:
+    """``SFA_ENGINE=compiled``: a process that cannot load the compiled engine must not start."""
+    return os.environ.get(ENV_MODE, "").strip().lower() == "compiled"
 
 
 def active() -> str:

@@ -192,3 +192,22 @@ def test_unknown_engine_mode_is_one_line_and_falls_back(tmp_path):
     assert proc.stdout.startswith("jit (")
     assert proc.stderr.strip() == "sfa: SFA_ENGINE='fast' is not jit, compiled or auto: using auto"
 
+
+
+def test_listen_refuses_to_start_without_the_engine_when_it_is_required(tmp_path):
+    import shutil
+
+    # a copy of the sfa package whose engine sources differ by one byte: no engine was built for it
+    shutil.copytree(ROOT / "sfa", tmp_path / "sfa", ignore=shutil.ignore_patterns("_engine_*", "__pycache__"))
+    src = tmp_path / "sfa" / "engine_build.py"
+    src.write_text(src.read_text() + "\n")
+    env = _env(SFA_ENGINE="compiled")
+    env["PYTHONPATH"] = f"{tmp_path}{os.pathsep}{env['PYTHONPATH']}"
+    env.pop("SFA_ENGINE_DIR", None)
+    proc = subprocess.run([sys.executable, "-m", "sfa", "listen", "--port", "0", "--bind", "127.0.0.1"],
+                          capture_output=True, text=True, env=env, timeout=120, cwd=tmp_path)
+    assert proc.returncode == 2
+    lines = proc.stderr.strip().splitlines()
+    assert len(lines) == 1, proc.stderr
+    want = "sfa listen: error: SFA_ENGINE=compiled but no compiled engine is usable: jit (no compiled engine"
+    assert lines[0].startswith(want), lines[0]
