@@ -20,6 +20,11 @@ A kernel called from Python that the extension does not export (a new one not ye
 ``sfa.engine_build.ENTRY_POINTS``) never fails: the first call switches the process to the JIT (one
 line on stderr, :func:`active` says why) and it runs there.
 
+Every sfa module with numba functions that call the kernels decorates them with this :func:`njit`
+too (``sfa.batch`` does): on the JIT nothing changes, and in a compiled process their first call
+switches to the JIT as above, where numba's ``njit`` would fail to type the compiled kernels. A
+module whose kernels are exported must be in :data:`MODULES` and its source in :data:`SOURCES`.
+
 ``SFA_ENGINE`` overrides the choice: ``jit`` (always the JIT, the previous behaviour, e.g. for the
 start-up benchmark's comparison), ``compiled`` (the compiled engine in every process, and required:
 ``sfa listen`` refuses to start without it, as the systemd unit asks, whose memory limit a JIT

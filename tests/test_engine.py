@@ -178,6 +178,8 @@ def test_entry_points_name_kernels_of_the_engine_modules():
 
     mods = {"sfa.kernels": kernels, "sfa.gnss_noise": gnss_noise}
     assert {m for m, _ in engine_build.ENTRY_POINTS} <= set(engine.MODULES)
+    for mod in engine.MODULES:  # an exported module's source is in the key, or a stale engine could load
+        assert mod.split(".", 1)[1] + ".py" in engine.SOURCES, mod
     for (mod, name), spec in engine_build.ENTRY_POINTS.items():
         disp = getattr(mods[mod], name)
         assert hasattr(disp, "py_func"), (mod, name)
