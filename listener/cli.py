@@ -43,8 +43,13 @@ def _overrides(args: argparse.Namespace) -> list[str]:
 
 
 def run(args: argparse.Namespace) -> int:
-    from listener.config import load_config
     from listener.errors import ConfigError
+    from sfa import engine
+
+    # before the kernels are imported: no numba, no compile (sfa.engine)
+    if not engine.prefer_compiled() and engine.required():
+        raise ConfigError(f"{engine.ENV_MODE}=compiled but no compiled engine is usable: {engine.active()}")
+    from listener.config import load_config
     from listener.jsonlog import JsonLogger
     from listener.pipeline import Pipeline
     from listener.service import ListenerService, run_service

@@ -346,7 +346,9 @@ class ListenerService:
             t0 = time.perf_counter()
             self.pipeline.filter.warm_up()
             lines = self.pipeline.filter.preload_lines()
-            self.log.info("warm_up", seconds=round(time.perf_counter() - t0, 3), lines=lines)
+            from sfa.engine import active
+
+            self.log.info("warm_up", seconds=round(time.perf_counter() - t0, 3), lines=lines, engine=active())
         for sig in (signal.SIGTERM, signal.SIGINT):
             try:
                 loop.add_signal_handler(sig, self._finish, signal.Signals(sig).name)

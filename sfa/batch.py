@@ -13,11 +13,11 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-from numba import njit
 
 from sfa import kernels as K
 from sfa import layout as L
 from sfa.config import FilterConfig
+from sfa.engine import njit  # numba.njit on the JIT; in a compiled process its first call switches to the JIT
 from sfa.errors import FilterStateError, MeasurementTypeError
 from sfa.measurements import GpsMeas, ImuMeas, InitMeas, OdoMeas
 from sfa.track_arrays import TrackArrays

@@ -13,7 +13,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from sfa import gnss_noise
+from sfa import engine, gnss_noise
 from sfa import kernels as K
 from sfa import layout as L
 from sfa.config import FilterConfig
@@ -154,8 +154,6 @@ class TrackFilter:
 
     def warm_up(self) -> None:
         """Compile (or load from cache) every kernel on a throwaway two-vertex line."""
-        from sfa.batch import warm_up_batch
-
         line = TrackArrays(0, 100.0, np.array([0.0, 100.0]), np.array([0.0, 100.0]), np.zeros(2),
                            np.zeros(2), np.zeros(2))
         h = _Hypothesis(line)
@@ -166,7 +164,10 @@ class TrackFilter:
         K.step_gps(h.x, h.P, h.aux, h.cnt, self._cfg, line.s_m, line.east_m, line.north_m, line.grade,
                    1.0, 1.0, 0.0, 1.5, 1)
         K.status_of(h.x, h.P, h.aux, self._cfg, 1.0)
-        warm_up_batch(self._cfg)
+        if not engine.is_compiled():  # the batch loop is numba-only: not in the compiled engine
+            from sfa.batch import warm_up_batch
+
+            warm_up_batch(self._cfg)
 
     def process(self, meas) -> Update:
         """Apply one measurement (in time order). Bad values are rejected and counted, never raised."""

@@ -33,8 +33,7 @@ from __future__ import annotations
 
 import math
 
-from numba import njit
-
+from sfa.engine import njit  # numba.njit, or the compiled engine (sfa.engine)
 from sfa.layout import (
     A_AD_FREEZE,
     A_AD_HI,

@@ -17,9 +17,9 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from numba import njit
 
 from sfa import gnss_noise
+from sfa.engine import njit  # numba.njit, or the compiled engine (sfa.engine)
 from sfa.layout import (
     A_CUSUM_N,
     A_CUSUM_P,

@@ -264,6 +264,8 @@ def test_bench_quick_writes_a_complete_table(tmp_path):
         ("listener", "CPU"),
         ("memory", "RSS"),
         ("track", "vectorised"),
+        ("startup", "first output", "empty numba cache"),
+        ("startup", "peak RSS"),
     ]
     for words in required:
         row = find(*words)
@@ -286,6 +288,8 @@ def test_bench_quick_writes_a_complete_table(tmp_path):
         find("replay", "C reference")["value"] is not None
         or "C reference skipped" in find("replay", "C reference")["note"]
     )
+    start = find("startup", "first output")
+    assert "JIT on an empty cache" in start["compared"] and "JIT on a warm cache" in start["compared"]
     md = (out / "bench.md").read_text()
     assert md.count("\n| ") == len(rows) + 1  # header + one line per row (separator starts with |-)
     text = doc.read_text()

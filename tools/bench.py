@@ -9,7 +9,9 @@ Sections (each a module of its own, see their docstrings for what exactly is com
 - listener latency and drops at 1x / 10x / 100x nominal rates and CPU at 1x (tools/bench_live.py),
 - listener memory over a soak at 1x (10 min; 1 min in --quick), run in the background while the
   in-process sections run (it is not timing-sensitive; said in the table),
-- track queries per second (tools/bench_queries.py).
+- track queries per second (tools/bench_queries.py),
+- start-up: ``sfa listen``'s first output after spawn and its peak RSS on an empty numba cache, the
+  compiled engine against the JIT on an empty and a warm cache (tools/bench_startup.py).
 
 Every figure is the median over ``--repeat`` runs (the slow comparisons on the whole 1 h capture run
 once; the table says how many runs each figure is over). The machine, its load at start and end, and
@@ -24,7 +26,7 @@ import sys
 import tempfile
 from pathlib import Path
 
-SECTIONS = ("accuracy", "generalisation", "replay", "listener", "memory", "track")
+SECTIONS = ("accuracy", "generalisation", "replay", "listener", "memory", "track", "startup")
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -126,13 +128,17 @@ def run(args: argparse.Namespace) -> int:
             from tools.bench_live import latency_rows
 
             rows += latency_rows(tmp, 3.0 if quick else 20.0, repeats, log=log)
+        if "startup" in only:  # timed from spawn: alone, after the soak, like the latency section
+            from tools.bench_startup import startup_rows
+
+            rows += startup_rows(repeats, quick, log=log)
     from datetime import UTC, datetime
 
     env["load_end"] = load_average()
     env["finished_utc"] = datetime.now(UTC).strftime("%Y-%m-%d %H:%M UTC")
     env["concurrency"] = (
         "the memory soak (sfa listen + sfa sim --live at 1x) runs in the background during the accuracy, "
-        "replay and track sections; the listener latency section runs alone after it"
+        "replay and track sections; the listener latency and start-up sections run alone after it"
     )
     md = to_markdown(rows, env)
     (out_dir / "bench.md").write_text(md)
