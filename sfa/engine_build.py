@@ -33,6 +33,7 @@ ENTRY_POINTS: dict[tuple[str, str], str] = {
     ("sfa.kernels", "step_odo"): "A1 A2 A1 I1 A1 A1 A1 A1 f8 f8 f8",
     ("sfa.kernels", "step_gps"): "A1 A2 A1 I1 A1 A1 A1 A1 A1 f8 f8 f8 f8 i8",
     ("sfa.kernels", "status_of"): "A1 A2 A1 A1 f8",
+    ("sfa.kernels", "predict_to"): "A1 A2 A1 I1 A1 A1 A1 f8",
     ("sfa.kernels", "sync_block"): "A1 A2 A1 A1 I1",
     ("sfa.kernels", "mirror"): "A1 A2 A1",
     ("sfa.kernels", "pending_var_v"): "A2 A1",
