@@ -28,11 +28,15 @@ Policy (docs/protocol.md, "Sequence buffers"):
     after a small gap by the hold timer.
 
   Otherwise it becomes a *suspect* (``jump_held``), out of the release path: in-order items go on
-  being released below it. A later item confirms it (it is then released at once), or after
-  ``jump_timeout_s`` it is released if the stream stayed silent below it (a legitimate last datagram
-  after a loss) and dropped (``jump_drops``) if the stream went on below it (the forged case), or
-  as soon as the stream's in-order numbers pass it. ``alerts`` (a list the owner passes) receives one
-  record per jump held, dropped or rate-limited, for the pipeline's warning events.
+  being released below it. A later item confirms it (it is then released at once; for a large jump
+  only while the stream stayed silent below it, so two forgeries a second apart on a 1 Hz stream do
+  not confirm each other), or after ``jump_timeout_s`` it is released if the stream stayed silent
+  below it (a legitimate last datagram after a loss) and dropped (``jump_drops``) if the stream went
+  on below it (the forged case). When the stream's in-order numbers reach it, the next datagram
+  decides: its own number (the suspect was a forgery: dropped) or a higher one (the suspect was the
+  real, reordered item: released first); nothing for ``jump_timeout_s``: released. ``flush`` releases
+  the suspects the stream stayed silent below and drops the others. ``alerts`` (a list the owner
+  passes) receives one record per jump held, dropped or rate-limited, for the pipeline's warnings.
 * :meth:`SequenceBuffer.reopen` gives back the number of an item the caller rejected for its content
   after the release (a future epoch...): a later item with that number is accepted, not a duplicate.
 * Memory is bounded whatever arrives: at most ``max_pending`` held items (on overflow the lowest
@@ -172,8 +176,9 @@ class SequenceBuffer(Generic[T]):
         self._now = -math.inf
         self._received = self._released = self._in_order = self._reordered = 0
         self._duplicates = self._lost = self._late = self._resyncs = self._overflow = self._prob_drops = 0
-        #: suspects: ext -> (item, deadline, _flow when it arrived, counted in order when accepted)
-        self._suspects: dict[int, tuple[T, float, int, bool]] = {}
+        #: suspects: ext -> (item, deadline, _flow when it arrived, counted in order when accepted, reached
+        #: by the stream from below)
+        self._suspects: dict[int, tuple[T, float, int, bool, bool]] = {}
         self._tokens = float(self._cfg.gap_budget)
         self._tok_t = -math.inf
         self._reopen: deque[int] = deque()  # ext given back by reopen(), oldest first
@@ -242,6 +247,16 @@ class SequenceBuffer(Generic[T]):
         d = ((seq - ref + SERIAL_HALF) & SERIAL_MASK) - SERIAL_HALF  # serial_diff(seq, ref), inlined
         ext = ref + d
         expected = self._expected
+        if self._suspects and expected is not None and expected in self._suspects:
+            # the stream reached a suspect from below: the next datagram says which it was
+            if ext == expected:  # its number's own datagram: the suspect was the forgery
+                del self._suspects[ext]
+                self._jump_drops += 1
+                self._alert("sequence_jump_dropped", now, ext, why="its number came from the stream")
+            elif ext > expected:  # the stream went past it: it was the real one (a reordered item)
+                self._unsuspect(expected, out)
+                expected = self._expected
+                d = ext - self._ref
         if d == 0 and expected is not None:  # the next expected number: the common case
             self._flow += 1
             if ext > self._max_ext:
@@ -334,12 +349,20 @@ class SequenceBuffer(Generic[T]):
         For a clean stop (STOP, shutdown) and for stream eviction.
         """
         out: list[T] = []
+        for ext in sorted(self._suspects):  # as at their time-out: kept if the stream stayed silent below
+            item, _, e0, in_order, _ = self._suspects.pop(ext)
+            if self._flow == e0 and (self._expected is None or ext >= self._expected):
+                self._pending[ext] = item
+                if in_order or ext > self._max_ext:
+                    self._in_order += 1
+                else:
+                    self._reordered += 1
+                self._max_ext = max(self._max_ext, ext)
+            else:
+                self._jump_drops += 1
         self._release_all(out)
         self._prob_drops += len(self._prob)
         self._prob.clear()
-        if self._suspects:  # never confirmed: not released into a stop
-            self._jump_drops += len(self._suspects)
-            self._suspects.clear()
         return out
 
     # ------------------------------------------------------------------------------------------ internals
@@ -471,9 +494,12 @@ class SequenceBuffer(Generic[T]):
         expected = self._expected
         if expected is None or ext <= expected:  # the startup hold; or nothing is skipped
             return True
-        if self._confirmed(ext):
+        small = ext - expected <= self._cfg.trusted_gap
+        # a large jump is confirmed only while the stream stayed silent below it: on a 1 Hz stream two
+        # forgeries a second apart (SEQ + 100, then + 101) would otherwise confirm each other
+        if (small or self._flow == e0) and self._confirmed(ext):
             return True
-        if ext - expected > self._cfg.trusted_gap or self._flow != e0:
+        if not small or self._flow != e0:
             return False  # a large jump, or the stream went on in order below it since it arrived
         cfg = self._cfg
         self._tokens = min(float(cfg.gap_budget), self._tokens + (now - self._tok_t) / cfg.gap_refill_s)
@@ -494,7 +520,7 @@ class SequenceBuffer(Generic[T]):
         else:
             self._reordered -= 1
         self._jumps_held += 1
-        self._suspects[ext] = (item, now + self._cfg.jump_timeout_s, e0, in_order)
+        self._suspects[ext] = (item, now + self._cfg.jump_timeout_s, e0, in_order, False)
         self._alert("sequence_jump_held", now, ext, missing=ext - (self._expected or ext))
         while len(self._suspects) > self._cfg.max_suspects:
             oldest = next(iter(self._suspects))
@@ -512,7 +538,7 @@ class SequenceBuffer(Generic[T]):
 
     def _unsuspect(self, ext: int, out: list[T]) -> None:
         """Release suspect ``ext`` now (confirmed, or its stream stayed silent below it)."""
-        item, _, _, in_order = self._suspects.pop(ext)
+        item, _, _, in_order, _ = self._suspects.pop(ext)
         if in_order or ext > self._max_ext:
             self._in_order += 1
         else:
@@ -525,7 +551,11 @@ class SequenceBuffer(Generic[T]):
         """A newly held ``ext`` may confirm suspects below it."""
         span = self._cfg.trusted_gap + 1
         for s in sorted(self._suspects):
-            if s < ext <= s + span and s in self._suspects and self._confirmed(s):
+            entry = self._suspects.get(s)
+            if entry is None or not s < ext <= s + span or not self._confirmed(s):
+                continue
+            expected = self._expected
+            if expected is None or s - expected <= self._cfg.trusted_gap or self._flow == entry[2]:
                 self._unsuspect(s, out)
 
     def _expire_suspects(self, now: float, out: list[T]) -> None:
@@ -534,9 +564,15 @@ class SequenceBuffer(Generic[T]):
             entry = self._suspects.get(s)
             if entry is None:
                 continue
-            _, deadline, e0, _ = entry
-            if expected is not None and (s < expected or (s == expected and self._flow != e0)):
-                # the stream's in-order numbers passed it, or reached it from below
+            item, deadline, e0, in_order, front = entry
+            if expected is not None and s == expected and self._flow != e0:
+                # the stream reached it from below: its number's own datagram, if the suspect was a
+                # forgery, comes next (push drops the suspect then); nothing for jump_timeout_s: keep it
+                if not front:
+                    self._suspects[s] = (item, now + self._cfg.jump_timeout_s, e0, in_order, True)
+                elif deadline <= now:
+                    self._unsuspect(s, out)
+            elif expected is not None and s < expected:  # the stream's in-order numbers passed it
                 del self._suspects[s]
                 self._jump_drops += 1
                 self._alert("sequence_jump_dropped", now, s, why="passed by the stream")
