@@ -22,6 +22,10 @@ Policy (docs/protocol.md, "Sequence buffers"):
 
   - it is *confirmed*: ``probation - 1`` more items of the stream are held within ``trusted_gap``
     above it (the stream really continues from there: RTP's probation), or
+  - nothing arrived in order (or late) since it came, and the silence before it explains the gap: at
+    least 3/4 of (missing + 1) of the stream's periods (an average over consecutive in-order arrivals)
+    passed since the last in-order or late arrival (a loss burst, an outage; a forgery right behind a
+    real datagram would need 75 periods of silence for SEQ + 100), or
   - the gap is small (at most ``trusted_gap`` numbers missing), nothing was released in order since
     it arrived, and the stream's budget of such unconfirmed skips allows it (a token bucket:
     ``gap_budget`` skips, one more every ``gap_refill_s``). This releases a STOP or any last datagram
@@ -59,6 +63,8 @@ from listener.serial import SERIAL_HALF, SERIAL_MASK, SERIAL_MOD
 __all__ = ["SeqBufferConfig", "SeqStats", "SequenceBuffer", "StreamTable", "StreamTableStats", "stream_key"]
 
 T = TypeVar("T")
+_PERIOD_MAX_S = 10.0  #: inter-arrivals longer than this do not enter a stream's period estimate [s]
+_RATE_SLACK = 0.75  #: a jump is explained by the silence before it if that lasted this share of its periods
 K = TypeVar("K", bound=Hashable)
 
 
@@ -157,7 +163,7 @@ class SequenceBuffer(Generic[T]):
         "_received", "_released", "_in_order", "_reordered", "_duplicates", "_lost", "_late",
         "_resyncs", "_overflow", "_prob_drops",
         "_suspects", "_tokens", "_tok_t", "_reopen", "_jumps_held", "_jump_drops", "_gap_limited",
-        "_reopened", "_flow", "alerts", "key",
+        "_reopened", "_flow", "_last_ext", "_last_t", "_period", "alerts", "key",
     )  # fmt: skip
 
     def __init__(self, config: SeqBufferConfig | None = None) -> None:
@@ -184,6 +190,9 @@ class SequenceBuffer(Generic[T]):
         self._reopen: deque[int] = deque()  # ext given back by reopen(), oldest first
         self._jumps_held = self._jump_drops = self._gap_limited = self._reopened = 0
         self._flow = 0  # arrivals of exactly the expected number (the stream going on in order)
+        self._last_ext = -1  # number and arrival of the last such arrival, and the stream's period from
+        self._last_t = -math.inf  # them (an exponential average over consecutive numbers) [s]
+        self._period: float | None = None
         self.alerts: list[dict] | None = None  #: the owner's list for jump/rate-limit records (or None)
         self.key: Hashable = None  #: the stream's key (for the alerts)
 
@@ -259,6 +268,13 @@ class SequenceBuffer(Generic[T]):
                 d = ext - self._ref
         if d == 0 and expected is not None:  # the next expected number: the common case
             self._flow += 1
+            if ext == self._last_ext + 1:
+                dt = now - self._last_t
+                if dt < _PERIOD_MAX_S:
+                    p = self._period
+                    self._period = dt if p is None else p + 0.125 * (dt - p)
+            self._last_ext = ext
+            self._last_t = now
             if ext > self._max_ext:
                 self._max_ext = ext
                 self._in_order += 1
@@ -296,6 +312,8 @@ class SequenceBuffer(Generic[T]):
             elif ext < self._start or ext in self._lost_set:
                 self._lost_set.discard(ext)  # a second copy of a late item is a duplicate
                 self._late += 1
+                self._flow += 1  # the stream is alive below the release point: no jump is silent
+                self._last_t = now
             else:
                 self._duplicates += 1
         else:
@@ -461,7 +479,7 @@ class SequenceBuffer(Generic[T]):
                 arrivals.popleft()  # released already (lazy deletion)
             elif deadline <= now:
                 arrivals.popleft()
-                if self._trusted(ext, e0, now):
+                if self._trusted(ext, e0, now, arrived=deadline - self._hold):
                     self._release_through(ext, out)
                 else:
                     self._suspect(ext, e0, in_order, now)
@@ -489,7 +507,9 @@ class SequenceBuffer(Generic[T]):
                     return True
         return False
 
-    def _trusted(self, ext: int, e0: int, now: float, limited_alert: bool = True) -> bool:
+    def _trusted(
+        self, ext: int, e0: int, now: float, limited_alert: bool = True, arrived: float | None = None
+    ) -> bool:
         """Whether the hold timer may release ``ext`` (declaring the gap below it lost)."""
         expected = self._expected
         if expected is None or ext <= expected:  # the startup hold; or nothing is skipped
@@ -499,8 +519,18 @@ class SequenceBuffer(Generic[T]):
         # forgeries a second apart (SEQ + 100, then + 101) would otherwise confirm each other
         if (small or self._flow == e0) and self._confirmed(ext):
             return True
-        if not small or self._flow != e0:
-            return False  # a large jump, or the stream went on in order below it since it arrived
+        if self._flow != e0:
+            return False  # the stream went on in order below it since it arrived
+        period = self._period
+        if arrived is not None and period is not None:
+            # the numbers missing are what the sender's rate explains for the silence before it (a loss
+            # burst, an outage): (missing + 1) periods, at least 3/4 of them, passed since the last
+            # in-order (or late) arrival. A forgery right behind a real datagram would need 75 periods
+            # of a silent stream for SEQ + 100
+            if arrived - self._last_t >= _RATE_SLACK * (ext - expected + 1) * period:
+                return True
+        if not small:
+            return False
         cfg = self._cfg
         self._tokens = min(float(cfg.gap_budget), self._tokens + (now - self._tok_t) / cfg.gap_refill_s)
         self._tok_t = now
