@@ -280,3 +280,18 @@ def test_cross_key_forgeries_are_all_rejected(track, run, tmp_path):  # noqa: F8
     assert m["senders"]["bindings"]["stop"] == "key:0"
     assert pipe.counters["stops"] == 1 and pipe.stopped
     assert [(o.epoch, o.arc_length) for o in outs] == [(o.epoch, o.arc_length) for o in base]
+
+
+def test_permissive_mode_through_the_pipeline_accepts_and_counts(track, run):  # noqa: F811
+    dgrams = _datagrams(run)
+    cfg = config_from_dict({"senders": {**TABLE, "mode": "permissive"}})
+    forged_stop = (("127.0.0.1", 50000), encode_input(Stop(0)))
+    pipe = Pipeline(track, cfg)
+    _feed(pipe, _attack(dgrams, 10.0, lambda t: [forged_stop]))
+    m = pipe.metrics()
+    assert pipe.stopped and pipe.counters["stops"] == 1  # the lab mode let the forged STOP through...
+    assert m["senders"]["would_reject"] == {"sender_unknown": 1}  # ...and counted it
+    assert "sender_unknown" not in m["input"]["rejected_by_reason"]
+    events = pipe.take_events()
+    assert events[0]["event"] == "senders_mode" and "PERMISSIVE" in events[0]["warning"]
+    assert any(e["event"] == "sender_would_reject" for e in events)

@@ -681,3 +681,20 @@ def test_stream_table_collects_alerts_with_the_stream_key():
     assert kinds == ["sequence_jump_held", "sequence_jump_dropped"]
     assert table.alerts[0]["stream"] == key and table.alerts[0]["seq"] == 100
     assert table.alerts[0]["missing"] == 98
+
+
+def test_a_jump_the_silence_explains_is_released_by_the_hold_timer():
+    """A 1 Hz stream that was silent for 10 s (an outage: 9 numbers missing, beyond trusted_gap): the
+    first item after it goes out at its hold time, not after jump_timeout_s; the same jump right behind
+    a real item (a forgery) waits as a suspect."""
+    buf = started(0)
+    for i in range(1, 5):
+        assert buf.push(i, i, float(i)) == [i]
+    assert buf.push(14, 14, 14.0) == []
+    assert buf.poll(14.0 + HOLD) == [14]
+    assert (buf.stats.lost, buf.stats.jumps_held) == (9, 0)
+    forged = started(0)
+    for i in range(1, 5):
+        forged.push(i, i, float(i))
+    forged.push(14, "forged", 4.01)
+    assert forged.poll(4.01 + HOLD) == [] and forged.stats.jump_held == 1
