@@ -58,6 +58,7 @@ class LinkAuth:
         self.ack_state = AuthState(cfg)
         self.output_epoch = EpochCounter(start_epoch)
         self._input_min_bytes = HEADER_BYTES + 3 + tag_bytes  # header, INPUT SEQ, tag: unwrap's bound
+        self.last_key_id: int | None = None  #: KEY_ID of the last authentic INPUT datagram
 
     @classmethod
     def from_config(cls, settings: AuthSettings, start_epoch: int = 0) -> LinkAuth:
@@ -76,7 +77,9 @@ class LinkAuth:
         ``sender`` (the source address) is not trusted: the replay window is the module id's.
         """
         module_id = datagram[1] if len(datagram) > 1 else 0
-        return unwrap(datagram, {module_id: self.input_key(module_id)}, self.input_state, module_id)
+        payload = unwrap(datagram, {module_id: self.input_key(module_id)}, self.input_state, module_id)
+        self.last_key_id = module_id  # the authenticated sender identity (listener.senders)
+        return payload
 
     def precheck_input(self, buf: bytes | bytearray, n: int) -> str | None:
         """The checks :meth:`open_input` makes before the HMAC, on ``buf[:n]``: the reason (counted, as

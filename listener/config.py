@@ -17,6 +17,7 @@ from typing import Any
 
 from listener.defaults import DEFAULT_HOST, DEFAULT_LISTENER_PORT, DEFAULT_OBCU_PORT
 from listener.errors import ConfigError
+from listener.senders import SendersConfig, parse_senders
 from sfa.layout import REASON_NAMES
 
 _FILTER_REASONS = frozenset(REASON_NAMES.values())
@@ -176,6 +177,8 @@ class ListenerConfig:
     auth: AuthSettings = field(default_factory=AuthSettings)
     vital: VitalConfig = field(default_factory=VitalConfig)
     metrics: MetricsConfig = field(default_factory=MetricsConfig)
+    #: which source may send which SENSOR_TYPE (listener.senders; default: trust on first use)
+    senders: SendersConfig = field(default_factory=SendersConfig)
     watchdog_max_lag_s: float = 0.5  #: event-loop lag beyond which WATCHDOG=1 is withheld [s]
 
 
@@ -332,6 +335,8 @@ def config_from_dict(data: dict[str, Any]) -> ListenerConfig:
     kwargs: dict[str, Any] = {}
     top = {f.name: f for f in dataclasses.fields(ListenerConfig)}
     for key, value in data.items():
+        if key == "senders":  # nested tables, parsed once auth.enabled is known (below)
+            continue
         if key in _SECTIONS:
             if not isinstance(value, dict):
                 raise ConfigError(f"{key}: expected a table")
@@ -340,6 +345,9 @@ def config_from_dict(data: dict[str, Any]) -> ListenerConfig:
             kwargs[key] = _coerce(key, value, top[key].type)
         else:
             raise ConfigError(f"{key}: unknown key (known: {', '.join(sorted(top))})")
+    if "senders" in data:
+        auth = kwargs.get("auth")
+        kwargs["senders"] = parse_senders(data["senders"], authenticated=bool(auth and auth.enabled))
     cfg = ListenerConfig(**kwargs)
     _validate(cfg)
     return cfg

@@ -46,8 +46,10 @@ from listener.codec import (
 )
 from listener.config import ListenerConfig
 from listener.obcu_link import ObcuLink
+from listener.senders import SenderTable, source_of
 from listener.seqbuf import SeqBufferConfig, StreamTable, stream_key
 from listener.vital import MODULES, DecaySupervisor, ModuleHealth
+from listener.warnlimit import WarningLimiter
 
 #: input counters present in every metrics snapshot, even while zero
 _ALWAYS_REPORTED = (
@@ -79,6 +81,7 @@ class _Arrived:
 
     msg: Any
     arrival: float
+    key: Any = None  #: its stream's key (a content rejection gives its SEQ back to that stream)
 
 
 def to_measurement(msg: Any, t_s: float):
@@ -161,6 +164,11 @@ class Pipeline:
         self._status_since: float | None = None
         self.events: deque[dict[str, Any]] = deque(maxlen=_EVENTS_KEPT)
         self.vital_counters: Counter[str] = Counter()
+        # ---- trust boundaries (issue 20): sender identity, sequence-jump warnings
+        self.senders = SenderTable(self.cfg.senders)
+        self._sources: dict[Any, str] = {}  # addr -> source string (bounded cache)
+        self._seq_warnings = WarningLimiter(self.cfg.senders.warning_interval_s)
+        self.events.extend(self.senders.start_events(0.0))
 
     # ------------------------------------------------------------------ inputs
     def receive(self, data: bytes, addr: Any, now: float) -> list[bytes]:
@@ -169,6 +177,7 @@ class Pipeline:
         if self.stopped:
             self.counters["after_stop"] += 1
             return []
+        key_id = None
         if self.auth is not None:
             try:
                 data = self.auth.open_input(data, addr)
@@ -176,6 +185,7 @@ class Pipeline:
                 self.counters["rejected"] += 1
                 self.rejected[str(exc.reason)] += 1
                 return self._drain(now)
+            key_id = self.auth.last_key_id
         try:
             msg = self._decode(data)
         except DecodeError as exc:
@@ -183,6 +193,11 @@ class Pipeline:
             self.rejected[str(exc.reason)] += 1
             return self._drain(now)
         stype = int(sensor_type_of(msg))
+        why = self._check_sender(addr, key_id, stype, now)
+        if why is not None:
+            self.counters["rejected"] += 1
+            self.rejected[why] += 1
+            return self._drain(now)
         self.by_type[_TYPE_NAMES.get(stype, str(stype))] += 1
         key = stream_key(addr, stype, self.cfg.input.per_type_sequence)
         module = _MODULE_OF_TYPE.get(stype)
@@ -193,8 +208,38 @@ class Pipeline:
             streams = self._module_streams[module]
             if key not in streams and len(streams) < 16:
                 streams.add(key)
-        released = self.streams.push(key, msg.seq, _Arrived(msg, now), now)
+        released = self.streams.push(key, msg.seq, _Arrived(msg, now, key), now)
+        if self.streams.alerts:
+            self._sequence_alerts()
         return self._dispatch(released, now)
+
+    def _check_sender(self, addr: Any, key_id: int | None, stype: int, now: float) -> str | None:
+        """listener.senders: None if this source may send ``stype``, else the reject reason."""
+        if key_id is None:
+            source = self._sources.get(addr)
+            if source is None:
+                if len(self._sources) >= 1024:
+                    self._sources.clear()
+                source = self._sources[addr] = source_of(addr)
+        else:
+            source = source_of(addr, key_id)
+        why = self.senders.check(source, stype, now)
+        if self.senders.events:
+            self.events.extend(self.senders.events)
+            self.senders.events.clear()
+        return why
+
+    def _sequence_alerts(self) -> None:
+        """The sequence buffers' jump records as warning events (rate limited per kind)."""
+        alerts = self.streams.alerts
+        for a in alerts:
+            kind = a.pop("event")
+            at = a.pop("at")
+            stream = a.pop("stream")
+            ev = self._seq_warnings.event(kind, at, stream=_stream_name(stream), **a)
+            if ev is not None:
+                self.events.append(ev)
+        alerts.clear()
 
     @staticmethod
     def _decode(data: bytes):
@@ -226,6 +271,8 @@ class Pipeline:
         """Release sequence-buffer holds, run the OBCU link's timers and the vital supervision due at
         ``now`` (a silent sensor's time-out, a fault's budget)."""
         out = self._dispatch(self.streams.poll(now), now)
+        if self.streams.alerts:
+            self._sequence_alerts()
         due = self._supervision_deadline()
         if due is not None and now >= due:
             out.extend(self._supervise(now))
@@ -296,6 +343,7 @@ class Pipeline:
                 # e.g. a flipped exponent bit: one such epoch would drag the filter far into the future
                 self.counters["rejected"] += 1
                 self.rejected["epoch_future"] += 1
+                self.give_back_seq(item)
                 return
             self.counters["dated_by_epoch"] += 1
         if epoch > self._newest_epoch:
@@ -305,6 +353,13 @@ class Pipeline:
         heapq.heappush(self._heap, (epoch, self._order, item.msg))
         if len(self._heap) > self.cfg.merge.max_pending:
             self.counters["merge_overflow"] += 1  # released early rather than lost
+
+    def give_back_seq(self, item: _Arrived) -> None:
+        """A released datagram was rejected for its content: its SEQ does not count as used, so the
+        legitimate datagram with that number is still accepted (listener.seqbuf, reopen)."""
+        buf = self.streams.get(item.key) if item.key is not None else None
+        if buf is not None:
+            buf.reopen(item.msg.seq)  # counted as sequencing.reopened when a datagram takes it
 
     def _date_undated(self) -> None:
         while self._undated:
@@ -598,9 +653,15 @@ class Pipeline:
                         "overflow",
                         "probation_drops",
                         "pending",
+                        "jumps_held",
+                        "jump_drops",
+                        "gap_limited",
+                        "reopened",
+                        "jump_held",
                     )
                 },
             },
+            "senders": self.senders.stats(),
             "clock": {
                 "synced": self.clock.synced,
                 "unconfirmed_strobes": self.clock.unconfirmed,
@@ -639,6 +700,13 @@ class Pipeline:
 
 
 _STATUS_NAMES = {0: "initialising", 1: "nominal", 2: "degraded", 3: "lost"}
+
+
+def _stream_name(key: Any) -> str:
+    """A stream key (an address, or (address, SENSOR_TYPE) with per-type sequences) for the logs."""
+    if isinstance(key, tuple) and len(key) == 2 and isinstance(key[0], tuple):
+        return f"{source_of(key[0])}/{_TYPE_NAMES.get(key[1], key[1])}"
+    return source_of(key)
 
 
 def _round(x: float | None) -> float | None:

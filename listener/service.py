@@ -209,6 +209,8 @@ class ListenerService:
         self._timer_at = None
         self._work_started = self._loop.time()
         self._send(self.pipeline.handle_timer(self._work_started))
+        if self.pipeline.stopped:  # a STOP the hold timer released (it came after a gap in its stream)
+            self._finish("stop datagram")
         self._rearm()
 
     def _send(self, datagrams: list[bytes]) -> None:
@@ -372,6 +374,7 @@ class ListenerService:
             metrics_port=None if self.metrics_server is None else self.metrics_server.port,
         )
         self.notifier.ready(f"listening on {inp.bind}:{self.bound_port}")
+        self._log_events()  # the sender table's mode (loud when permissive or trust on first use)
         try:
             await self._done.wait()
         finally:
@@ -415,6 +418,9 @@ _EVENT_LEVELS = {
 
 
 def _event_level(kind: str, ev: dict[str, Any]) -> str:
+    level = ev.pop("level", None)  # the trust checks' events say theirs (listener.senders, seqbuf jumps)
+    if level is not None:
+        return level
     if kind == "status":
         return {"lost": "error", "degraded": "warning"}.get(ev.get("status"), "info")
     if kind == "link_state":

@@ -19,8 +19,16 @@ from hypothesis import strategies as st
 
 from interface_modules.scenario import load_scenario
 from interface_modules.tracks import database_path
-from listener.codec import INPUT_FORMS, DecodeError, decode_input, input_layout
-from listener.config import FilterSelection, ListenerConfig, MergeConfig, VitalConfig
+from listener.codec import (
+    INPUT_FORMS,
+    DecodeError,
+    GroundTruth,
+    Stop,
+    decode_input,
+    encode_input,
+    input_layout,
+)
+from listener.config import FilterSelection, ListenerConfig, MergeConfig, VitalConfig, config_from_dict
 from tools.capture_reader import CaptureStats, read_capture
 from tools.fast_decode import decode_bytes
 from tools.fast_pcap import scan_capture
@@ -28,7 +36,7 @@ from tools.fast_replay import try_fast_replay
 from tools.replay import ReplayOptions, replay_capture
 from track_db import TrackDatabase
 
-SECTIONS = ("input", "sequencing", "clock", "merge", "filter")
+SECTIONS = ("input", "sequencing", "clock", "merge", "filter", "senders")
 
 
 @pytest.fixture(scope="module")
@@ -226,6 +234,46 @@ def test_future_epochs_are_rejected_identically(sim, tmp_path):
     assert info.exact_prefix < imu[0]  # the rejected rows are in the compiled part
     assert exact.metrics["input"]["rejected_by_reason"]["epoch_future"] == 3
     assert_same(exact, fast)
+
+
+def test_the_sender_table_applies_to_the_capture(sim, tmp_path):
+    """A forged GROUND TRUTH (arc 2000 m) and STOP from a port the capture's control module does not use:
+    the replay binds the senders as the listener does (trust on first use) and rejects both, so the
+    estimates are the clean capture's; the compiled path cannot count per datagram and falls back."""
+    dgrams = list(sim["dgrams"])
+    t0 = dgrams[0][0]
+    k = next(i for i, (t, _, _) in enumerate(dgrams) if t - t0 >= 20.0)
+    gt = GroundTruth(0, 10.0, 0.0, 0.0, 2000.0, None, None)
+    forged = [
+        (dgrams[k][0], ("127.0.0.1", 50000), encode_input(gt)),
+        (dgrams[k + 500][0], ("127.0.0.1", 50000), encode_input(Stop(1))),
+    ]
+    cap = tmp_path / "forged.pcap"
+    write_capture(cap, sorted(dgrams + forged, key=lambda r: r[0]))
+    clean = replay_capture(sim["cap"], sim["track"], ReplayOptions())
+    exact = replay_capture(cap, sim["track"], ReplayOptions())
+    assert exact.metrics["input"]["rejected_by_reason"]["sender_unknown"] == 2
+    assert exact.metrics["input"]["stops"] == 1
+    a, b = clean.new_estimates(), exact.new_estimates()
+    for col in ("epoch", "arc_length", "status"):
+        np.testing.assert_array_equal(a[col], b[col], err_msg=col)
+    fast, info = try_fast_replay(cap, sim["track"], ReplayOptions())
+    assert fast is None and "sender table" in info.reason
+    # a configured table the capture follows keeps the compiled path (the same table, the same code)
+    sources = {}
+    for _, addr, p in dgrams:
+        sources.setdefault(p[0], set()).add(f"{addr[0]}:{addr[1]}")
+    assert all(len(v) == 1 for v in sources.values())  # one source per type in the simulator's capture
+    names = {1: "imu", 2: "odometer", 3: "gps", 8: "ground_truth", 9: "strobe", 10: "stop"}
+    table: dict = {}
+    for t, (src,) in sources.items():
+        table.setdefault(src, []).append(names[t])
+    cfg = config_from_dict({"senders": {f"s{i}": {"source": src, "types": types}
+                                        for i, (src, types) in enumerate(table.items())}})  # fmt: skip
+    opts = ReplayOptions(config=cfg)
+    fast, info = try_fast_replay(sim["cap"], sim["track"], opts)
+    assert info.used, info.reason
+    assert_same(replay_capture(sim["cap"], sim["track"], opts), fast)
 
 
 def _bad_payloads() -> list[bytes]:

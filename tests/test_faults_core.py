@@ -7,11 +7,19 @@ import math
 import numpy as np
 import pytest
 
-from listener.codec import DecodeError, ImuSample, decode_input, encode_input
+from listener.codec import DecodeError, GroundTruth, ImuSample, Stop, decode_input, encode_input
 from tools.faults.config import Impairments, impairments_from_dict, load_profile
 from tools.faults.core import FORGE_SENDER, FaultCore
 from tools.faults.errors import FaultConfigError
-from tools.faults.forge import flip_bits, forge_invalid, forge_valid, garbage, garbage_batch, truncate
+from tools.faults.forge import (
+    flip_bits,
+    forge_invalid,
+    forge_targeted,
+    forge_valid,
+    garbage,
+    garbage_batch,
+    truncate,
+)
 
 A = ("127.0.0.1", 47001)
 B = ("127.0.0.1", 47002)
@@ -242,6 +250,10 @@ def test_visible_drops_are_the_gaps_a_receiver_sees(imp):
         ({"inject_start_s": 5.0, "inject_end_s": 1.0}, "inject_end_s"),
         ({"forge_on_stream": 1}, "forge_on_stream"),
         ({"jitter_s": math.inf}, "jitter_s"),
+        ({"forge_kind": "teleport"}, "forge_kind"),
+        ({"forge_kind": 3}, "forge_kind"),
+        ({"forge_kind": "seq_jump"}, "forge_on_stream"),
+        ({"forge_kind": "seq_jump", "forge_on_stream": True, "forge_seq_offset": 0}, "forge_seq_offset"),
     ],
 )
 def test_profile_errors_name_the_key(data, message):
@@ -272,3 +284,31 @@ def test_injection_timers_advance_at_large_absolute_times():
         calls += 1
     assert core.next_timer() is None
     assert core.stats()["garbage"] == 2000 and core.stats()["forged_invalid"] == 200
+
+
+@pytest.mark.parametrize("kind", ["ground_truth", "stop"])
+def test_targeted_forgeries_from_their_own_source(kind):
+    """issue 20: valid GROUND TRUTH / STOP datagrams from the forger's own source, counted forged_foreign."""
+    imp = Impairments(forge_rate_hz=2.0, forge_valid_fraction=1.0, forge_kind=kind, inject_end_s=5.0)
+    core = FaultCore(imp, seed=3, start=0.0)
+    out = drive(core, [], until=10.0)
+    msgs = [decode_input(d) for _, d, _ in out]
+    assert len(msgs) == 10 and core.stats()["forged_foreign"] == 10
+    assert all(isinstance(m, GroundTruth if kind == "ground_truth" else Stop) for m in msgs)
+    assert all(s == FORGE_SENDER for _, _, s in out)
+
+
+def test_seq_jump_forgeries_copy_the_senders_last_datagram_ahead():
+    imp = Impairments(forge_rate_hz=10.0, forge_valid_fraction=1.0, forge_kind="seq_jump",
+                      forge_on_stream=True, forge_seq_offset=100, inject_start_s=0.5, inject_end_s=1.0)
+    core = FaultCore(imp, seed=4, start=0.0)
+    sender = ("127.0.0.1", 47001)
+    real = [(i * 0.01, sender, i, encode_input(ImuSample(i, 0.0, 0.0, -9.81, 0.0, 0.0, 0.0, i * 0.01)))
+            for i in range(100)]  # fmt: skip
+    out = drive(core, real, until=2.0)
+    forged = [(t, decode_input(d)) for t, d, s in out if decode_input(d).seq >= 100]
+    assert len(forged) == 5 and core.stats()["forged_jump"] == 5
+    for t, m in forged:  # the newest real datagram before it, 100 ahead
+        last = max(i for i in range(100) if i * 0.01 < t - 1e-9)  # (timers before a datagram at t)
+        assert m.seq == last + 100 and m.epoch == pytest.approx(last * 0.01)
+    assert forge_targeted(np.random.default_rng(1), "seq_jump", None) is None  # nothing to copy yet

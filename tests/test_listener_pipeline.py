@@ -15,6 +15,7 @@ from listener.codec import (
     OdometerSample,
     Stop,
     Strobe,
+    decode_input,
     decode_output,
     encode_ack,
     encode_input,
@@ -239,3 +240,64 @@ def test_a_far_future_epoch_is_rejected_and_changes_nothing(track, run):
     # the only difference is the one missing IMU sample: the run continues, close to the clean one
     assert max(o.epoch for o in got) == max(o.epoch for o in ref)
     assert abs(got[-1].arc_length - ref[-1].arc_length) < 0.05
+
+
+# ---------------------------------------------------------------------------------------------- issue 20
+
+
+def _outputs_around(outputs, t_split):
+    epochs = np.array([decode_output(o).epoch for o in outputs])
+    return int(np.sum((epochs >= t_split - 5) & (epochs < t_split))), int(
+        np.sum((epochs >= t_split) & (epochs < t_split + 5))
+    )
+
+
+def test_forged_seq_jumps_do_not_silence_a_stream_and_are_warned_about(track, run):
+    """Forged IMU datagrams with SEQ + 100 (inside max_backward) from the IMU's own port, one per second
+    for 10 s: outputs per second before and after the first one stay the same, nothing is "late", and
+    the warning goes out at most once per 10 s with the suppressed count."""
+    dgrams = _datagrams(run)
+    t0 = dgrams[0][0]
+    imu_addr = ("127.0.0.1", PORTS["imu"])
+    attacked = []
+    next_forgery = t0 + 15.0
+    last_imu = None
+    for t, addr, data in dgrams:
+        if addr == imu_addr:
+            last_imu = int.from_bytes(data[1:3], "little")
+        if t >= next_forgery and next_forgery < t0 + 25.0 and last_imu is not None:
+            forged = ImuSample((last_imu + 100) & 0xFFFF, 0.0, 0.0, -9.81, 0.0, 0.0, 0.0, t - 0.0005)
+            attacked.append((t, imu_addr, encode_input(forged)))
+            next_forgery += 1.0
+        attacked.append((t, addr, data))
+    clean_outs = _feed(Pipeline(track), dgrams)
+    pipe = Pipeline(track)
+    outs = _feed(pipe, attacked)
+    before, after = _outputs_around(outs, t0 + 15.0)
+    clean_before, clean_after = _outputs_around(clean_outs, t0 + 15.0)
+    assert (before, after) == (clean_before, clean_after)  # before the fix: about 20 % of them after
+    seq = pipe.metrics()["sequencing"]
+    assert (seq["late"], seq["lost"], seq["jump_drops"], seq["jumps_held"]) == (0, 0, 10, 10)
+    held = [e for e in pipe.take_events() if e["event"] == "sequence_jump_held"]
+    assert len(held) == 1 and held[0]["level"] == "warning"  # 10 within 10 s: one warning
+    assert held[0]["stream"] == f"127.0.0.1:{PORTS['imu']}"
+
+
+def test_a_content_rejection_does_not_use_up_the_sequence_number(track, run):
+    """A forged GNSS fix with the next SEQ and an epoch a day ahead is rejected (epoch_future); the
+    legitimate fix with that SEQ is then accepted, not dropped as a duplicate."""
+    dgrams = _datagrams(run)
+    t0 = dgrams[0][0]
+    gps_addr = ("127.0.0.1", PORTS["gps"])
+    k = next(i for i, (t, a, _) in enumerate(dgrams) if a == gps_addr and t - t0 > 10.0)
+    legit = decode_input(dgrams[k][2])
+    forged = GpsFix(legit.seq, legit.lat, legit.lon, legit.alt, 1, 12, 1.5, legit.epoch + 86400.0)
+    attacked = [*dgrams[:k], (dgrams[k][0] - 0.001, gps_addr, encode_input(forged)), *dgrams[k:]]
+    pipe = Pipeline(track)
+    _feed(pipe, attacked)
+    m = pipe.metrics()
+    assert m["input"]["rejected_by_reason"]["epoch_future"] == 1
+    assert m["sequencing"]["duplicates"] == 0 and m["sequencing"]["reopened"] == 1
+    clean = Pipeline(track)
+    _feed(clean, dgrams)
+    assert m["filter"]["outcomes"] == clean.metrics()["filter"]["outcomes"]  # every fix processed

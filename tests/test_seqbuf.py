@@ -26,8 +26,8 @@ def started(seq0: int = 0, config: SeqBufferConfig = NOHOLD_START) -> SequenceBu
 
 
 def check_identities(s: SeqStats) -> None:
-    dropped = s.duplicates + s.late + s.probation_drops
-    assert s.received == s.in_order + s.reordered + dropped + s.probation_held
+    dropped = s.duplicates + s.late + s.probation_drops + s.jump_drops
+    assert s.received == s.in_order + s.reordered + dropped + s.probation_held + s.jump_held
     assert s.in_order + s.reordered == s.released + s.pending
 
 
@@ -99,10 +99,21 @@ def test_each_gap_waits_from_the_arrival_of_the_item_behind_it():
 
 def test_one_expiry_releases_everything_that_arrived_before_it():
     buf = started(0)
-    buf.push(5, 5, 0.000)
-    buf.push(3, 3, 0.001)  # lower, arrived later: still released with 5 (never held past 5's deadline)
-    assert buf.poll(HOLD) == [3, 5]
-    assert buf.stats.lost == 3  # 1, 2, 4
+    buf.push(3, 3, 0.000)
+    buf.push(2, 2, 0.001)  # lower, arrived later: still released with 3 (never held past 3's deadline)
+    assert buf.poll(HOLD) == [2, 3]
+    assert buf.stats.lost == 1  # 1
+
+
+def test_a_jump_beyond_the_trusted_gap_waits_for_the_gap_below_it_to_shrink():
+    buf = started(0)
+    buf.push(5, 5, 0.000)  # 4 numbers missing (> trusted_gap 3): not skipped by the hold timer alone
+    buf.push(3, 3, 0.001)
+    assert buf.poll(HOLD) == [] and buf.stats.jump_held == 1
+    assert buf.poll(0.001 + HOLD) == [3, 5]  # 3 skips 1, 2 (small, stream silent); then 5 is 1 ahead
+    s = buf.stats
+    assert (s.lost, s.jumps_held, s.jump_drops, s.jump_held) == (3, 1, 0, 0)
+    check_identities(s)
 
 
 def test_duplicates_of_released_and_pending_items_are_dropped():
@@ -423,7 +434,7 @@ STEP = st.tuples(
 def test_random_schedules_keep_memory_bounded_and_never_release_twice(seq0, steps, hold_start):
     cfg = dataclasses.replace(SMALL, startup_hold=hold_start)
     buf: SequenceBuffer = SequenceBuffer(cfg)
-    bound = 2 * cfg.max_pending + cfg.max_forward + cfg.max_backward + cfg.probation
+    bound = 2 * cfg.max_pending + cfg.max_forward + cfg.max_backward + cfg.probation + cfg.max_suspects
     seq, now = seq0, 0.0
     released: list[int] = []
     for uid, (delta, dt, poll) in enumerate(steps):
@@ -439,7 +450,7 @@ def test_random_schedules_keep_memory_bounded_and_never_release_twice(seq0, step
         deadline = buf.next_deadline()
         assert (deadline is None) == (buf.pending_count == 0)
         if deadline is not None:
-            assert deadline <= now + max(cfg.hold_time_s, cfg.probation_timeout_s) + 1e-9
+            assert deadline <= now + max(cfg.hold_time_s, cfg.probation_timeout_s, cfg.jump_timeout_s) + 1e-9
     released += buf.flush()
     assert len(released) == len(set(released))  # nothing released twice
     s = buf.stats
@@ -497,3 +508,193 @@ def test_lru_keeps_the_busy_stream():
 def test_stream_table_rejects_a_bad_bound():
     with pytest.raises(ConfigError):
         StreamTable(CFG, max_streams=0)
+
+
+# ---------------------------------------------------------------------------------------------- forged jumps
+# (issue 20: one datagram with SEQ + 100 must not turn the next hundred legitimate ones into "late")
+
+
+def _run_with_forgery(seq0, n, period, at, offset, config=NOHOLD_START):
+    """``n`` legitimate items every ``period`` s; after item ``at`` one forged item with SEQ + ``offset``
+    (ahead of the next expected number). Returns (legitimate items released, the buffer)."""
+    buf = started(seq0, config)
+    out: list = [0]  # (started() pushed item seq0 as number seq0: it is item 0 here)
+    forged_seq = (seq0 + at + offset) & 0xFFFF
+    for i in range(1, n):
+        t = i * period
+        out += buf.push((seq0 + i) & 0xFFFF, i, t)
+        if i == at:
+            out += buf.push(forged_seq, "forged", t + period / 3)
+        out += buf.poll(t + period / 2)
+    out += buf.poll(n * period + 10.0)
+    out += buf.flush()
+    return [x for x in out if x != "forged"], buf
+
+
+@given(
+    st.integers(0, 0xFFFF),
+    st.sampled_from([0.001, 0.005, 0.01, 0.05, 0.2, 1.0]),  # the stream's period: 1 kHz .. 1 Hz [s]
+    st.integers(5, 60),
+    st.integers(1, 100),
+)
+def test_one_forged_jump_costs_the_stream_at_most_the_trusted_gap(seq0, period, at, offset):
+    n = 120
+    legit, buf = _run_with_forgery(seq0, n, period, at, offset)
+    # before: one forgery within max_backward silenced everything after it up to SEQ + offset
+    lost = n - len(legit)
+    assert lost <= NOHOLD_START.trusted_gap + 1  # the missing numbers of a small skip, and the forged one's
+    if offset > NOHOLD_START.trusted_gap + 1:
+        # a large jump: at most the forged number's own item, when the stream reaches it within the hold
+        # time (the forgery is then in the place of its number; fast streams only)
+        assert lost <= 1
+        if period >= 0.01:
+            assert legit == list(range(n))
+    check_identities(buf.stats)
+
+
+def test_seq_plus_100_on_a_100_hz_stream_is_held_then_dropped():
+    legit, buf = _run_with_forgery(0, 300, 0.01, 50, 100)
+    assert legit == list(range(300))  # all 300 legitimate items, in order
+    s = buf.stats
+    assert (s.jumps_held, s.jump_drops, s.lost, s.late, s.duplicates) == (1, 1, 0, 0, 0)
+
+
+def test_seq_plus_100_on_a_1_hz_stream_is_dropped_when_the_next_one_comes():
+    legit, buf = _run_with_forgery(0, 30, 1.0, 10, 100)
+    assert legit == list(range(30))
+    assert (buf.stats.jump_drops, buf.stats.late) == (1, 0)
+
+
+def test_small_forgeries_are_rate_limited():
+    """A 1 Hz stream and one forgery 2 ahead of the next number (1 missing: a small gap) every 2 s, for
+    120 s. A small skip the hold timer makes without confirmation costs the stream at most the missing
+    number and the forged one's; the budget (3 at once, one more per 10 s) bounds how many there are; the
+    other forgeries wait as suspects and are dropped when the stream's next item shows them forged."""
+    cfg = NOHOLD_START
+    buf = started(0, cfg)
+    out: list = [0]
+    n = 120
+    for i in range(1, n):
+        out += buf.push(i, i, float(i))
+        if i % 2 == 0:
+            out += buf.push((buf.expected + 1) & 0xFFFF, "forged", i + 0.01)
+        out += buf.poll(i + 0.5)
+    out += buf.poll(n + 10.0)
+    legit = [x for x in out if x != "forged"]
+    s = buf.stats
+    skips = cfg.gap_budget + math.ceil(n / cfg.gap_refill_s)
+    assert out.count("forged") <= skips
+    assert n - len(legit) <= 2 * skips  # unlimited: 2 of every 2 items lost (60 skips, 120 items)
+    assert s.gap_limited > 0 and s.jump_drops == (n - 1) // 2 - out.count("forged")
+    check_identities(s)
+
+
+@given(
+    st.integers(0, 0xFFFF),
+    st.sampled_from([0.001, 0.01, 0.05, 1.0]),
+    st.lists(st.tuples(st.integers(1, 200), st.integers(1, 60)), min_size=1, max_size=6),
+)
+def test_legitimate_losses_release_every_item_that_arrives(seq0, period, bursts):
+    """Bursts of loss of any length (within max_forward): every item that arrives is released, in order,
+    at the latest jump_timeout_s after it arrived (a burst is followed by the stream itself)."""
+    n = 400
+    dropped: set[int] = set()
+    for start, length in bursts:
+        dropped.update(range(start, min(start + length, n - 1)))
+    buf = started(seq0)
+    out: list = [0]
+    latest: dict = {}
+    for i in range(1, n):
+        t = i * period
+        if i not in dropped:
+            latest[i] = t
+            out += buf.push((seq0 + i) & 0xFFFF, i, t)
+        out += buf.poll(t)
+    out += buf.poll(n * period + 10.0)
+    arrived = [0] + [i for i in range(1, n) if i not in dropped]
+    assert out == arrived
+    assert buf.stats.lost == len(dropped) and buf.stats.jump_drops == 0
+
+
+def test_stop_after_a_gap_is_released_by_the_hold_timer():
+    """GROUND TRUTH SEQ 0, then STOP SEQ 2 (1 lost) and nothing more: the hold timer releases the STOP."""
+    buf = started(0)
+    assert buf.push(2, "stop", 0.100) == []
+    assert buf.next_deadline() == pytest.approx(0.100 + HOLD)
+    assert buf.poll(0.100 + HOLD) == ["stop"]
+    assert buf.stats.lost == 1
+
+
+def test_a_last_item_after_a_large_gap_is_released_after_the_jump_timeout():
+    buf = started(0)
+    assert buf.push(50, "last", 1.0) == []
+    assert buf.poll(1.0 + HOLD) == [] and buf.stats.jump_held == 1
+    assert buf.next_deadline() == pytest.approx(1.0 + HOLD + NOHOLD_START.jump_timeout_s)
+    assert buf.poll(1.0 + HOLD + NOHOLD_START.jump_timeout_s) == ["last"]  # the stream stayed silent
+    s = buf.stats
+    assert (s.lost, s.jump_drops, s.released) == (49, 0, 2)
+    check_identities(s)
+
+
+def test_a_later_item_confirms_a_large_jump_at_once():
+    buf = started(0)
+    buf.push(50, 50, 1.0)
+    assert buf.poll(1.0 + HOLD) == []
+    assert buf.push(51, 51, 1.5) == [50, 51]  # RTP's probation: two in a row from the new position
+    assert buf.stats.lost == 49
+
+
+def test_flush_drops_suspects():
+    buf = started(0)
+    buf.push(1, 1, 0.0)
+    buf.push(100, "forged", 0.001)
+    buf.push(2, 2, 0.01)
+    assert buf.poll(0.001 + HOLD) == [] and buf.stats.jump_held == 1
+    assert buf.flush() == []
+    assert buf.stats.jump_drops == 1 and buf.next_deadline() is None
+
+
+def test_reopen_gives_a_content_rejected_number_back():
+    buf = started(0)
+    assert buf.push(1, "forged", 0.01) == ["forged"]  # e.g. a future epoch the pipeline then rejects
+    assert buf.reopen(1)
+    assert buf.push(1, "legit", 0.02) == ["legit"]  # not a duplicate
+    assert buf.push(1, "again", 0.03) == []  # once only
+    s = buf.stats
+    assert (s.reopened, s.duplicates) == (1, 1)
+    assert not buf.reopen(5)  # ahead of the stream: nothing to give back
+    assert not SequenceBuffer(NOHOLD_START).reopen(0)  # no stream yet
+    with pytest.raises(SequenceError):
+        buf.reopen(70000)
+    check_identities(s)
+
+
+def test_stream_table_collects_alerts_with_the_stream_key():
+    table: StreamTable = StreamTable(NOHOLD_START)
+    key = ("127.0.0.1", 47001)
+    table.push(key, 0, 0, 0.0)
+    table.push(key, 100, "forged", 0.001)
+    table.push(key, 1, 1, 0.01)
+    table.poll(0.001 + HOLD)
+    table.poll(0.001 + HOLD + NOHOLD_START.jump_timeout_s)
+    kinds = [a["event"] for a in table.alerts]
+    assert kinds == ["sequence_jump_held", "sequence_jump_dropped"]
+    assert table.alerts[0]["stream"] == key and table.alerts[0]["seq"] == 100
+    assert table.alerts[0]["missing"] == 98
+
+
+def test_a_jump_the_silence_explains_is_released_by_the_hold_timer():
+    """A 1 Hz stream that was silent for 10 s (an outage: 9 numbers missing, beyond trusted_gap): the
+    first item after it goes out at its hold time, not after jump_timeout_s; the same jump right behind
+    a real item (a forgery) waits as a suspect."""
+    buf = started(0)
+    for i in range(1, 5):
+        assert buf.push(i, i, float(i)) == [i]
+    assert buf.push(14, 14, 14.0) == []
+    assert buf.poll(14.0 + HOLD) == [14]
+    assert (buf.stats.lost, buf.stats.jumps_held) == (9, 0)
+    forged = started(0)
+    for i in range(1, 5):
+        forged.push(i, i, float(i))
+    forged.push(14, "forged", 4.01)
+    assert forged.poll(4.01 + HOLD) == [] and forged.stats.jump_held == 1

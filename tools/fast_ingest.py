@@ -499,6 +499,27 @@ class Ingested:
     def rows(self) -> int:
         return int(self.res[R_ROWS])
 
+    def first_sources(self, start: int) -> list[tuple[int, tuple[str, int], int]]:
+        """(row, (host, port), SENSOR_TYPE) of the first valid row of each (source, type) pair from row
+        ``start`` on, in row order (for the sender table: listener.senders), vectorised."""
+        rows = np.flatnonzero(self.row_code[start:] >= 0) + start
+        if rows.size == 0:
+            return []
+        d = self.data
+        ip = self.row_off[rows] - PAYLOAD_AFTER_RECORD + RECORD_HEADER_BYTES + ETH_HEADER_BYTES
+        host = np.zeros(rows.size, dtype=np.int64)
+        for b in range(4):
+            host = (host << 8) | d[ip + 12 + b].astype(np.int64)
+        port = (d[ip + 20].astype(np.int64) << 8) | d[ip + 21].astype(np.int64)
+        key = (host << 24) | (port << 8) | self.row_code[rows].astype(np.int64)
+        _, first = np.unique(key, return_index=True)
+        out = []
+        for i in np.sort(first).tolist():
+            h = int(host[i])
+            addr = (".".join(str((h >> s) & 0xFF) for s in (24, 16, 8, 0)), int(port[i]))
+            out.append((int(rows[i]), addr, int(self.row_code[rows[i]])))
+        return out
+
     def datagram(self, r: int):
         """(arrival, (host, port), payload) of row r, read from the headers in front of its payload."""
         o = int(self.row_off[r])

@@ -221,6 +221,8 @@ def _options_reason(options) -> str:
         return "sensor selection (some sensors disabled)"
     if options.record_measurements:
         return "measurements recorded (baselines)"
+    if cfg.auth.enabled:
+        return "authenticated links (the compiled ingest reads plain INPUT datagrams)"
     if cfg.merge.hold_s != 0.0:
         return f"merge.hold_s = {cfg.merge.hold_s} (the fast path needs 0)"
     if cfg.clock.rate != 1.0:
@@ -305,6 +307,27 @@ class _Prefix:
             and m["clock"]["undated_pending"] == 0
             and seq["evictions"] == 0
         )
+
+
+def _senders_reason(got, pipe, h: int) -> str:
+    """The sender table (listener.senders) over the rest of the capture: each (source, SENSOR_TYPE)
+    pair after the exact prefix goes through the prefix pipeline's own table once, at its first
+    datagram, as the exact replay would (a TOFU binding is made there). "" when every pair is
+    accepted (then every datagram is: the table's decision depends on the pair only); else why the
+    exact replay is needed (it rejects, counts and warns per datagram)."""
+    from listener.senders import source_of
+
+    table = pipe.senders
+    for row, addr, stype in got.first_sources(h):
+        t = float(got.datagram(row)[0])
+        if table.check(source_of(addr), stype, t) is not None or table.would_reject:
+            return (
+                f"sender table: {addr[0]}:{addr[1]} may not send SENSOR_TYPE {stype} "
+                "(more than one source per type, or one the table does not allow: the exact replay "
+                "rejects and counts them)"
+            )
+    table.events.clear()
+    return ""
 
 
 # ---------------------------------------------------------------------------------------- result rows
@@ -451,6 +474,9 @@ def _replay_ingested(got, track, options, ingest_s: float = 0.0):
             return None, _info(False, f"{_TYPE_NAME[t]} datagrams without epoch (need STROBE dating)", h)
     if res[R_LAST_BREAK] >= h:
         why = "a stream with a gap, a duplicate or reordering (needs the sequence buffer)"
+        return None, _info(False, why, h)
+    why = _senders_reason(got, pipe, h)
+    if why:
         return None, _info(False, why, h)
     if not clock_supported():
         return None, _info(False, "Python >= 3.12 sums floats compensated (STROBE clock fit)", h)

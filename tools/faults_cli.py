@@ -33,6 +33,8 @@ _PROXY_OPTIONS = (
     ("forge_rate_hz", float, "forged INPUT datagrams per second"),
     ("forge_count", int, "most forged datagrams (0: no limit)"),
     ("forge_valid_fraction", float, "fraction of forged datagrams that are well-formed and in range"),
+    ("forge_kind", str, "valid forgeries: random, ground_truth, stop or seq_jump (with --forge-on-stream)"),
+    ("forge_seq_offset", int, "seq_jump: SEQ ahead of the real sender's newest datagram"),
     ("garbage_rate_hz", float, "random-byte datagrams per second (flood)"),
     ("garbage_max_bytes", int, "longest garbage datagram [bytes]"),
     ("inject_start_s", float, "injections start after this long [s]"),

@@ -17,6 +17,8 @@ from typing import Any
 
 from tools.faults.errors import FaultConfigError
 
+FORGE_KINDS = ("random", "ground_truth", "stop", "seq_jump")
+
 
 @dataclass(frozen=True)
 class Impairments:
@@ -47,6 +49,11 @@ class Impairments:
     #: fraction of forged datagrams that are fully valid (in range); the rest break a range or form [0..1]
     forge_valid_fraction: float = 0.0
     forge_on_stream: bool = False  #: send forged datagrams as if from a real sender (else their own source)
+    #: what a *valid* forgery is (issue 20's trust attacks): "random" (any sensor, random content),
+    #: "ground_truth" (a GROUND TRUTH at a random arc length), "stop" (a STOP), "seq_jump" (a copy of the
+    #: real sender's last datagram with SEQ + forge_seq_offset; needs forge_on_stream)
+    forge_kind: str = "random"
+    forge_seq_offset: int = 100  #: seq_jump: how far ahead of the sender's last SEQ [sequence numbers]
     garbage_rate_hz: float = 0.0  #: random-byte datagrams injected per second (a flood) [1/s]
     garbage_max_bytes: int = 64  #: longest garbage datagram [bytes]
     inject_start_s: float = 0.0  #: injections start this long after the proxy start [s]
@@ -76,6 +83,13 @@ class Impairments:
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, int) or value < low:
                 raise FaultConfigError(f"{name}: an integer >= {low}, got {value!r}")
+        if self.forge_kind not in FORGE_KINDS:
+            raise FaultConfigError(f"forge_kind: one of {', '.join(FORGE_KINDS)}, got {self.forge_kind!r}")
+        if self.forge_kind == "seq_jump" and not self.forge_on_stream:
+            raise FaultConfigError("forge_kind: seq_jump forges a real sender's stream: set forge_on_stream")
+        off = self.forge_seq_offset
+        if isinstance(off, bool) or not isinstance(off, int) or not 1 <= off <= 32767:
+            raise FaultConfigError(f"forge_seq_offset: an integer in 1..32767, got {off!r}")
         for i, window in enumerate(self.blackouts):
             ok = len(window) == 2 and all(math.isfinite(x) for x in window)
             if not ok or window[0] < 0 or window[1] <= 0:
@@ -122,6 +136,8 @@ def impairments_from_dict(data: dict[str, Any], where: str = "profile") -> Impai
                 raise FaultConfigError(f"{where}.{key}: expected an integer, got {value!r}")
         elif typ == "bool" and not isinstance(value, bool):
             raise FaultConfigError(f"{where}.{key}: expected true or false, got {value!r}")
+        elif typ == "str" and not isinstance(value, str):
+            raise FaultConfigError(f"{where}.{key}: expected a string, got {value!r}")
         kwargs[key] = value
     try:
         return Impairments(**kwargs).validate()

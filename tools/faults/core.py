@@ -25,7 +25,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from tools.faults.config import Impairments
-from tools.faults.forge import flip_bits, forge_invalid, forge_valid, garbage_batch, truncate
+from tools.faults.forge import flip_bits, forge_invalid, forge_targeted, forge_valid, garbage_batch, truncate
 
 FORGE_SENDER = ("forge", 0)  #: sender key of injected datagrams that do not pose as a real sender
 FAULT_SENDER_ADDR = ("127.0.0.1", 40999)  #: where the replay path says such datagrams come from
@@ -37,7 +37,8 @@ Emit = tuple[float, bytes, Hashable]
 COUNTERS = (
     "received", "forwarded", "dropped_loss", "dropped_burst", "dropped_blackout", "bitflipped",
     "truncated", "duplicated", "reordered", "reorder_expired", "replayed", "forged_valid",
-    "forged_invalid", "garbage", "replies_received", "replies_forwarded", "replies_dropped_blackout",
+    "forged_invalid", "forged_foreign", "forged_jump", "garbage", "replies_received", "replies_forwarded",
+    "replies_dropped_blackout",
     "replies_dropped_loss", "replies_duplicated", "replies_bitflipped", "replies_truncated",
     "senders_evicted", "emitted", "leading_drops",
 )
@@ -50,6 +51,7 @@ class _Sender:
     history: deque = field(default_factory=deque)  #: earlier datagrams, for replays
     forwarded: bool = False  #: whether any datagram of this sender went out yet
     drops_since_forward: int = 0  #: datagrams dropped since the last one that went out
+    last: bytes | None = None  #: the newest valid datagram forwarded (seq_jump forgeries copy it)
 
 
 class FaultCore:
@@ -176,6 +178,8 @@ class FaultCore:
             self._emit(out, t, old, sender, st, advance=False)
         if imp.replay > 0.0:
             st.history.append(original)
+        if imp.forge_kind == "seq_jump" and valid:
+            st.last = original
         return out
 
     def _drop(self, st: _Sender, counter: str, out: list[Emit]) -> list[Emit]:
@@ -260,12 +264,23 @@ class FaultCore:
             if self.in_blackout(t):
                 continue
             rng = self._inj_rng
-            if rng.random() < imp.forge_valid_fraction:
+            sender = self._forge_sender()
+            valid = rng.random() < imp.forge_valid_fraction
+            if valid and imp.forge_kind != "random":
+                # issue 20's trust attacks: valid datagrams the sender table (GROUND TRUTH, STOP from
+                # their own source) or the sequence buffer (a jump on a real sender's stream) must stop
+                st = self._senders.get(sender) if sender != FORGE_SENDER else None
+                data = forge_targeted(rng, imp.forge_kind, None if st is None else st.last,
+                                      imp.forge_seq_offset)  # fmt: skip
+                if data is None:
+                    continue
+                kind = "forged_jump" if imp.forge_kind == "seq_jump" else "forged_foreign"
+            elif valid:
                 data, kind = forge_valid(rng), "forged_valid"
             else:
                 data, kind = forge_invalid(rng), "forged_invalid"
             self.counters[kind] += 1
-            out.append((t, data, self._forge_sender()))
+            out.append((t, data, sender))
             self.counters["emitted"] += 1
         if self._next_garbage is not None and self._next_garbage <= now and budget > 0:
             # the k-th garbage datagram is due at start + inject_start + k / rate: all due ones at once

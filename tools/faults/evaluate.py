@@ -68,6 +68,11 @@ class Observation:
     fresh_status: np.ndarray | None = None
 
 
+#: the trust checks' warning events (listener.senders, listener.seqbuf through the pipeline)
+TRUST_WARNINGS = ("sender_rejected", "sender_would_reject", "sequence_jump_held", "sequence_jump_dropped",
+                  "sequence_gap_rate_limited")
+
+
 def _fmt(x: float | None, digits: int = 2) -> str:
     if x is None or (isinstance(x, float) and not math.isfinite(x)):
         return "n/a"
@@ -134,7 +139,7 @@ def evaluate(obs: Observation, expect: dict[str, Any]) -> dict[str, Any]:
     zero = dict.fromkeys(("dropped_loss", "dropped_burst", "dropped_blackout", "leading_drops",
                           "trailing_drops",
                           "forged_invalid", "garbage", "truncated", "duplicated", "replayed", "reordered",
-                          "bitflipped", "forged_valid"), 0)
+                          "bitflipped", "forged_valid", "forged_foreign", "forged_jump"), 0)
     ip = {**zero, **ip}  # no input proxy: nothing injected
     visible = (ip["dropped_loss"] + ip["dropped_burst"] + ip["dropped_blackout"] + ip["truncated"]
                - ip["leading_drops"] - ip["trailing_drops"])
@@ -153,8 +158,19 @@ def evaluate(obs: Observation, expect: dict[str, Any]) -> dict[str, Any]:
     # forgeries; truncated ones never): exact on the replay path, a lower bound live, where the kernel
     # may also drop datagrams between the proxy and the listener (``net_drops``)
     accepted = sum(int(v) for v in inp.get("by_type", {}).values())
-    legit = ip.get("forwarded", 0) + ip["duplicated"] + ip["replayed"] + ip["forged_valid"] - ip["truncated"]
+    legit = (ip.get("forwarded", 0) + ip["duplicated"] + ip["replayed"] + ip["forged_valid"]
+             + ip["forged_jump"] - ip["truncated"])
     row["accepted_bad"] = max(0, accepted - legit) if obs.input_proxy else 0
+    # issue 20: forgeries the sender table must reject (foreign GROUND TRUTH / STOP), SEQ jumps on a real
+    # sender's stream (what they cost: datagrams dropped as late), and the warnings seen
+    by_reason = inp.get("rejected_by_reason", {})
+    row["foreign_inj"] = ip["forged_foreign"]
+    row["foreign_det"] = sum(int(v) for k, v in by_reason.items() if str(k).startswith("sender_"))
+    row["jump_inj"] = ip["forged_jump"]
+    row["late_det"] = int(seq.get("late", 0))
+    row["jump_drops"] = int(seq.get("jump_drops", 0))
+    seen = obs.metrics.get("warnings_seen", {})
+    row["trust_warnings"] = " ".join(f"{k}:{seen[k]}" for k in TRUST_WARNINGS if seen.get(k)) or "-"
     row["net_drops"] = (max(0, int(ip.get("emitted", 0)) - int(inp.get("received", 0)))
                         if obs.input_proxy else 0)
     seq_resyncs = int(seq.get("resyncs", 0))
@@ -242,6 +258,13 @@ def _checks(row, obs, expect, acc, fault_cov, reasons, deg, rec) -> dict[str, bo
         out["recover_within_s"] = le(rec, expect["recover_within_s"])
     if "reasons" in expect:
         out["reasons"] = bool(reasons & set(expect["reasons"]))
+    if "foreign_rejected_match" in expect:
+        out["foreign_rejected_match"] = row["foreign_det"] + row["net_drops"] >= row["foreign_inj"] > 0
+    if "late_max" in expect:
+        out["late_max"] = row["late_det"] <= expect["late_max"]
+    if "outputs_to_end_s" in expect:
+        last = float(obs.fresh_arrival.max()) if obs.fresh_arrival.size else -math.inf
+        out["outputs_to_end_s"] = obs.simulated_s - last <= expect["outputs_to_end_s"]
     if "auth_bad" in expect:
         out["auth_bad"] = bool(obs.auth) and obs.auth.get("bad", 0) <= expect["auth_bad"]
     # process-level figures exist in live mode only: elsewhere the check is not run (and said so)

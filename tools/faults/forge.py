@@ -12,7 +12,7 @@ import struct
 
 import numpy as np
 
-from listener.codec import GpsFix, GroundTruth, ImuSample, OdometerSample, Strobe, encode_input
+from listener.codec import GpsFix, GroundTruth, ImuSample, OdometerSample, Stop, Strobe, encode_input
 
 _INVALID_KINDS = ("range", "non_finite", "form", "length", "type")
 
@@ -37,6 +37,26 @@ def forge_valid(rng: np.random.Generator, epoch_s: float | None = None) -> bytes
         return encode_input(GroundTruth(seq, float(rng.uniform(0.0, 30.0)), 0.0, 0.0,
                                         float(rng.uniform(0.0, 20000.0)), None, epoch))
     return encode_input(Strobe(seq, float(rng.uniform(0.0, 1e9) if epoch is None else epoch)))
+
+
+def forge_targeted(
+    rng: np.random.Generator, kind: str, last: bytes | None = None, offset: int = 100
+) -> bytes | None:
+    """A well-formed forgery of ``kind`` (Impairments.forge_kind other than "random"): a GROUND TRUTH at a
+    random arc length, a STOP, or ``last`` (the real sender's newest datagram) with SEQ + ``offset``
+    (None when there is no ``last`` yet)."""
+    seq = int(rng.integers(0, 65536))
+    if kind == "ground_truth":
+        return encode_input(GroundTruth(seq, float(rng.uniform(0.0, 30.0)), 0.0, 0.0,
+                                        float(rng.uniform(0.0, 20000.0)), None, None))
+    if kind == "stop":
+        return encode_input(Stop(seq))
+    if kind == "seq_jump":
+        if last is None or len(last) < 5:
+            return None
+        s = ((last[1] | last[2] << 8) + offset) & 0xFFFF
+        return last[:1] + struct.pack("<H", s) + last[3:]
+    raise ValueError(f"forge kind {kind!r}")
 
 
 def forge_invalid(rng: np.random.Generator) -> bytes:

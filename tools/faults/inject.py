@@ -39,7 +39,7 @@ from typing import Any
 import numpy as np
 
 from tools.faults.config import Impairments
-from tools.faults.forge import forge_invalid, forge_valid, garbage_batch
+from tools.faults.forge import forge_invalid, forge_targeted, forge_valid, garbage_batch
 
 TICK_S = 0.0005  #: sleep between sending rounds (datagrams due meanwhile go out together) [s]
 BLOCK = 4096  #: garbage datagrams drawn per block [count]
@@ -59,7 +59,8 @@ class Injector:
         self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
         self.sock.bind((bind_host or target[0], 0))
         self.counters: dict[str, int] = dict.fromkeys(
-            ("forged_valid", "forged_invalid", "garbage", "emitted", "send_errors", "skipped_blackout"), 0
+            ("forged_valid", "forged_invalid", "forged_foreign", "garbage", "emitted", "send_errors",
+             "skipped_blackout"), 0
         )
         self.t_first: float | None = None
         self.t_last: float | None = None
@@ -117,7 +118,10 @@ class Injector:
             if self._in_blackout(k, imp.forge_rate_hz):
                 self.counters["skipped_blackout"] += 1
                 continue
-            if self.rng.random() < imp.forge_valid_fraction:
+            valid = self.rng.random() < imp.forge_valid_fraction
+            if valid and imp.forge_kind in ("ground_truth", "stop"):  # from the injector's own socket
+                self._send(forge_targeted(self.rng, imp.forge_kind), "forged_foreign")
+            elif valid:
                 self._send(forge_valid(self.rng), "forged_valid")
             else:
                 self._send(forge_invalid(self.rng), "forged_invalid")

@@ -218,6 +218,7 @@ def split_injections(imp: Impairments) -> tuple[Impairments, Impairments | None]
         return proxy, None
     injector = Impairments(
         forge_rate_hz=forge, forge_count=imp.forge_count, forge_valid_fraction=imp.forge_valid_fraction,
+        forge_kind=imp.forge_kind,
         garbage_rate_hz=imp.garbage_rate_hz, garbage_max_bytes=imp.garbage_max_bytes,
         inject_start_s=imp.inject_start_s, inject_end_s=imp.inject_end_s, blackouts=imp.blackouts,
     ).validate()
@@ -410,7 +411,12 @@ def run_live(spec: ScenarioSpec, out: Path) -> Observation:
     lst = readers["listener"]
     exit_ev = lst.last("exit") or lst.last("metrics") or {}
     metrics = {k: v for k, v in exit_ev.items() if k in ("input", "sequencing", "clock", "merge", "filter",
-                                                          "link", "service")}
+                                                          "link", "service", "senders")}
+    seen: dict[str, int] = {}
+    for _, ev in lst.events:
+        if ev.get("level") == "warning":
+            seen[ev.get("event", "")] = seen.get(ev.get("event", ""), 0) + 1
+    metrics["warnings_seen"] = seen
     transitions = [(t - t_start, ev.get("state", "")) for t, ev in lst.events
                    if ev.get("event") == "link_state" and t >= t_start]
     reasons: set[str] = set()
@@ -454,7 +460,7 @@ def run_live(spec: ScenarioSpec, out: Path) -> Observation:
             notes.append("injector: no exit counters")
         else:
             injected = {k: v for k, v in ev.items() if k != "event"}
-            for key in ("forged_valid", "forged_invalid", "garbage", "emitted"):
+            for key in ("forged_valid", "forged_invalid", "forged_foreign", "garbage", "emitted"):
                 proxies["proxy_in"][key] = proxies["proxy_in"].get(key, 0) + int(ev.get(key, 0))
             if ev.get("send_errors"):
                 notes.append(f"injector: {ev['send_errors']} datagrams refused by sendto (not counted sent)")

@@ -247,6 +247,11 @@ def run_replay_path(
         trace.crash = traceback.format_exc()
     trace.end_s = now
     trace.metrics = pipe.metrics()
+    seen: dict[str, int] = {}  # the warning events still queued (the pipeline keeps its last 1000)
+    for ev in pipe.events:
+        if ev.get("level") == "warning":
+            seen[ev["event"]] = seen.get(ev["event"], 0) + 1
+    trace.metrics["warnings_seen"] = seen
     trace.link_transitions = [(t - t0, s) for t, s in pipe.link.transitions]
     trace.input_proxy = in_core.stats() if in_core else {}
     if link_auth is not None:

@@ -57,6 +57,10 @@ EXPECT_KEYS = {
     "latency_delta_ms": "live, injections: largest rise of the p99 output lag during the injection window "
                         "over the equally long stretch before it [ms]",
     "auth_bad": "authenticated link: most accepted datagrams that are not a first copy of an original",
+    "foreign_rejected_match": "every GROUND TRUTH / STOP forged from a foreign source rejected by the "
+                              "sender table (true)",
+    "late_max": "most datagrams dropped as late by the sequence buffers [count]",
+    "outputs_to_end_s": "fresh outputs until at most this long before the scenario's end [s]",
 }
 
 
