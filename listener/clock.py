@@ -15,9 +15,19 @@ An accelerated live run (the simulator at ``--speed X``) has a sensor clock X ti
 listener's; ``ClockConfig.rate = X`` centres the skew bound on it (otherwise the offset would be
 extrapolated flat and every gap between STROBEs would look like a step).
 
-A step larger than ``max_step_s`` between the prediction and a new STROBE (sensor-set clock reset,
-listener restart) discards the window and restarts the estimate, once a second STROBE confirms the
-new offset: a single corrupted timestamp is ignored (counted as ``unconfirmed``).
+Robustness (issue 20): a STROBE is not taken into the model when it would step the timebase (more
+than ``max_step_s`` from the prediction) or, once the model has settled (``confirm_s`` after its
+start), move it forward faster than the drift bound allows: its offset may exceed the settled
+offset ``o_0`` by at most ``(rate - 1 + max_drift * rate) * (now - t_0) + max_jitter_s``
+(SUBSET-041: 0.1 %; the upper envelope could otherwise be dragged forward a jitter allowance at a
+time). Such a STROBE becomes the candidate for a new offset (counted ``unconfirmed``; every STROBE
+not taken is counted ``rejected`` and dates ``trouble_at``). The candidate is adopted (the window
+discarded and the estimate restarted: a sensor-set clock reset, a listener restart) only when STROBEs
+agreeing with it (no more than ``max_step_s`` later, no earlier than the drift bound and jitter allow)
+keep coming for ``confirm_s`` and none agrees with the current model in between: a forger
+interleaving shifted STROBEs with the real ones, or ramping its offset, never gets there; a real
+reset does. With
+``confirm_s = 0`` the second agreeing STROBE adopts it (the rule before issue 20).
 """
 
 from __future__ import annotations
@@ -40,7 +50,12 @@ class StrobeClock:
         self.resets = 0  #: times the model was restarted by a clock step
         self.strobes = 0  #: STROBEs used
         self.unconfirmed = 0  #: STROBEs that disagreed with the model and were not (yet) confirmed
+        self.rejected = 0  #: STROBEs not taken (a step or beyond the drift bound, not yet persisted)
+        self.trouble_at: float | None = None  #: listener time of the last STROBE not taken
         self._candidate: float | None = None
+        self._cand_since = 0.0  # listener time the candidate was first seen
+        self._anchor_t = 0.0  # start of the model (t_0) [listener s]
+        self._anchor_o = 0.0  # settled offset o_0 at t_0 [s]
 
     @property
     def synced(self) -> bool:
@@ -52,19 +67,44 @@ class StrobeClock:
         if not math.isfinite(timestamp_s) or not math.isfinite(now):
             return
         offset = timestamp_s - now
+        cfg = self._cfg
         if self._samples:
             predicted = self.offset_at(now)
-            if abs(offset - predicted) > self._cfg.max_step_s:
-                # a step: believed only when the next STROBE confirms it (one corrupted timestamp
-                # must not move the timebase)
+            since = now - self._anchor_t
+            bad = abs(offset - predicted) > cfg.max_step_s or (
+                since >= cfg.confirm_s
+                and offset
+                > self._anchor_o + (cfg.rate - 1.0 + cfg.max_drift * cfg.rate) * since + cfg.max_jitter_s
+            )
+            if bad:
+                # a step, or faster than the drift bound: believed only once STROBEs agreeing with it
+                # persist for confirm_s with none agreeing with the model (one corrupted timestamp, or a
+                # forger's stream beside the real one, must not move the timebase)
                 cand = self._candidate
-                if cand is None or abs(offset - cand) > self._cfg.max_step_s:
+                if cand is not None:  # agreeing: at most max_step_s more delayed, and no faster than
+                    # the drift bound beyond the jitter allowance (a ramp never agrees with itself)
+                    age = now - self._cand_since
+                    dc = offset - (cfg.rate - 1.0) * age - cand
+                    if not -cfg.max_step_s <= dc <= cfg.max_jitter_s + cfg.max_drift * cfg.rate * age:
+                        cand = None
+                if cand is None:
                     self._candidate = offset
+                    self._cand_since = now
                     self.unconfirmed += 1
+                    self.rejected += 1
+                    self.trouble_at = now
+                    return
+                if now - self._cand_since < cfg.confirm_s:
+                    self.rejected += 1
+                    self.trouble_at = now
                     return
                 self._samples.clear()
                 self.resets += 1
         self._candidate = None
+        if not self._samples:
+            self._anchor_t, self._anchor_o = now, offset
+        elif now - self._anchor_t < cfg.confirm_s:  # settling: the least delayed STROBE so far
+            self._anchor_o = max(self._anchor_o, offset - (cfg.rate - 1.0) * (now - self._anchor_t))
         self._samples.append((now, offset))
         self.strobes += 1
         self._fit()

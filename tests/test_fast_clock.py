@@ -44,6 +44,11 @@ def _state(clock: StrobeClock) -> tuple:
         clock.unconfirmed,
         clock._candidate,
         clock.synced,
+        clock.rejected,
+        clock.trouble_at,
+        clock._cand_since,
+        clock._anchor_t,
+        clock._anchor_o,
     )
 
 
