@@ -23,10 +23,11 @@ offset ``o_0`` by at most ``(rate - 1 + max_drift * rate) * (now - t_0) + max_ji
 time). Such a STROBE becomes the candidate for a new offset (counted ``unconfirmed``; every STROBE
 not taken is counted ``rejected`` and dates ``trouble_at``). The candidate is adopted (the window
 discarded and the estimate restarted: a sensor-set clock reset, a listener restart) only when STROBEs
-agreeing with it (no more than ``max_step_s`` later, no earlier than the drift bound and jitter allow)
-keep coming for ``confirm_s`` and none agrees with the current model in between: a forger
-interleaving shifted STROBEs with the real ones, or ramping its offset, never gets there; a real
-reset does. With
+agreeing with it (within ``max_step_s`` of it) keep coming for ``confirm_s`` and none agrees with the
+current model in between: a forger interleaving shifted or ramping STROBEs with the real ones never
+gets there (each real STROBE agrees with the model and clears the candidate); a real reset does, and
+so does a lone time source whose clock runs off the drift bound (followed in steps, each one counted,
+warned and reported as ``clock_untrusted``). With
 ``confirm_s = 0`` the second agreeing STROBE adopts it (the rule before issue 20).
 """
 
@@ -81,11 +82,10 @@ class StrobeClock:
                 # persist for confirm_s with none agreeing with the model (one corrupted timestamp, or a
                 # forger's stream beside the real one, must not move the timebase)
                 cand = self._candidate
-                if cand is not None:  # agreeing: at most max_step_s more delayed, and no faster than
-                    # the drift bound beyond the jitter allowance (a ramp never agrees with itself)
+                if cand is not None:  # agreeing with the candidate: within max_step_s of it (carried
+                    # at the nominal rate), so a lone source running off the drift bound is followed
                     age = now - self._cand_since
-                    dc = offset - (cfg.rate - 1.0) * age - cand
-                    if not -cfg.max_step_s <= dc <= cfg.max_jitter_s + cfg.max_drift * cfg.rate * age:
+                    if abs(offset - (cfg.rate - 1.0) * age - cand) > cfg.max_step_s:
                         cand = None
                 if cand is None:
                     self._candidate = offset

@@ -275,3 +275,36 @@ def test_ground_truth_first_supersedes_the_checkpoint(track, run):
     est = b.filter.estimate()
     assert est.arc_length_m == pytest.approx(np.interp(est.epoch_s, run.t_s, run.s_m), abs=1.0)
     assert isinstance(run.measurements[0], InitMeas)
+
+
+def test_anti_replay_state_survives_a_restart(track):
+    """Authenticated links: the windows and the output epoch go through the checkpoint document; a
+    datagram accepted before the checkpoint is a replay after the restore, the sender's next is not."""
+    from listener.auth import AuthError, AuthReason, wrap
+    from listener.auth_link import LinkAuth, input_key
+    from listener.codec import Strobe, encode_input
+
+    master = bytes(range(32))
+    key = input_key(master, 3)
+    first = LinkAuth(master, start_epoch=100)
+    sent = [wrap(encode_input(Strobe(k, 1000.0 + k)), key, 7, key_id=3) for k in range(50)]
+    for d in sent[:40]:
+        first.open_input(d, ("127.0.0.1", 1))
+    first.seal_output(b"\x00\x00" + bytes(16), 0)
+    saved = json.loads(json.dumps(first.export_state()))  # as the checkpoint file carries it
+    second = LinkAuth(master, start_epoch=50)  # a wall clock that went back
+    second.restore_state(saved)
+    for d, why in ((sent[39], AuthReason.REPLAY), (sent[5], AuthReason.REPLAY)):
+        with pytest.raises(AuthError) as e:
+            second.open_input(d, ("127.0.0.1", 9))  # from another address: the module's window
+        assert e.value.reason == why
+    small = LinkAuth(master)
+    small.input_state.cfg = small.input_state.cfg.__class__(window=16)
+    small.restore_state(saved)
+    with pytest.raises(AuthError) as e:
+        small.open_input(sent[2], ("127.0.0.1", 9))
+    assert e.value.reason == AuthReason.OLD
+    assert second.open_input(sent[40], ("127.0.0.1", 1))[0] == 9  # the sender's next: accepted
+    assert second.output_epoch.epoch == 101  # past the saved one, never reused
+    with pytest.raises(ValueError):
+        second.restore_state({"input": [["x", -1, "zz"]]})

@@ -166,3 +166,19 @@ def test_accelerated_sensor_clock_with_lost_strobes():
         else:
             assert clock.resets == 0 and clock.unconfirmed == 0
             assert worst < 0.005
+
+
+def test_a_lone_source_off_the_drift_bound_is_followed_in_counted_steps():
+    """The only STROBE source runs 10 % fast (a sender at 1.1x with clock.rate = 1): not believed as
+    drift, but it persists, so the model is restarted on it every few seconds (each a counted reset and a
+    rejected STROBE): the timebase never lags it by more than a few hundred ms, so nothing it dates
+    looks like the future."""
+    clock = StrobeClock(ClockConfig())
+    worst = 0.0
+    for k in range(120):
+        now = float(k)
+        clock.on_strobe(1000.0 + 1.1 * now, now)
+        probe = now + 0.5
+        worst = max(worst, (1000.0 + 1.1 * probe) - clock.to_sensor_time(probe))
+    assert clock.resets >= 10 and clock.rejected >= 10 and clock.trouble_at is not None
+    assert worst < 1.2, worst

@@ -128,8 +128,7 @@ def _on_strobe(ts, t, n, window, prm, st, smp_t, smp_o, hx, hy):
                 agree = False
                 if st[C_HAS_CAND] != 0.0:
                     age = t - st[C_CAND_SINCE]
-                    dc = offset - (rate - 1.0) * age - st[C_CAND]
-                    agree = -max_step <= dc <= prm[P_JITTER] + prm[P_DRIFT] * rate * age
+                    agree = not abs(offset - (rate - 1.0) * age - st[C_CAND]) > max_step
                 if not agree:
                     st[C_CAND] = offset
                     st[C_HAS_CAND] = 1.0
