@@ -20,15 +20,16 @@ than ``max_step_s`` from the prediction) or, once the model has settled (``confi
 start), move it forward faster than the drift bound allows: its offset may exceed the settled
 offset ``o_0`` by at most ``(rate - 1 + max_drift * rate) * (now - t_0) + max_jitter_s``
 (SUBSET-041: 0.1 %; the upper envelope could otherwise be dragged forward a jitter allowance at a
-time). Such a STROBE becomes the candidate for a new offset (counted ``unconfirmed``; every STROBE
-not taken is counted ``rejected`` and dates ``trouble_at``). The candidate is adopted (the window
-discarded and the estimate restarted: a sensor-set clock reset, a listener restart) only when STROBEs
-agreeing with it (within ``max_step_s`` of it) keep coming for ``confirm_s`` and none agrees with the
-current model in between: a forger interleaving shifted or ramping STROBEs with the real ones never
-gets there (each real STROBE agrees with the model and clears the candidate); a real reset does, and
-so does a lone time source whose clock runs off the drift bound (followed in steps, each one counted,
-warned and reported as ``clock_untrusted``). With
-``confirm_s = 0`` the second agreeing STROBE adopts it (the rule before issue 20).
+time). ``rate`` is ``clock.rate``, or the rate the source showed while the model settled when that
+is more than 2 % off (a misconfigured or accelerated source, logged as ``clock_rate_mismatch``).
+Such a STROBE becomes the candidate for a new offset (counted ``unconfirmed``; every STROBE not
+taken is counted ``rejected`` and dates ``trouble_at``). The candidate is adopted (the window
+discarded and the estimate restarted: a sensor-set clock reset, a listener restart) only when
+STROBEs agreeing with it (within ``max_step_s`` of it, carried at the rate) keep coming for
+``confirm_s`` and none agrees with the current model in between: a forger interleaving shifted or
+ramping STROBEs with the real ones never gets there (each real STROBE agrees with the model and
+clears the candidate); a real reset does. With ``confirm_s = 0`` the second agreeing STROBE adopts
+it (the rule before issue 20).
 """
 
 from __future__ import annotations
@@ -57,6 +58,7 @@ class StrobeClock:
         self._cand_since = 0.0  # listener time the candidate was first seen
         self._anchor_t = 0.0  # start of the model (t_0) [listener s]
         self._anchor_o = 0.0  # settled offset o_0 at t_0 [s]
+        self._anchor_r = math.nan  # settled rate (NaN while settling) [sensor s per listener s]
 
     @property
     def synced(self) -> bool:
@@ -72,11 +74,12 @@ class StrobeClock:
         if self._samples:
             predicted = self.offset_at(now)
             since = now - self._anchor_t
-            bad = abs(offset - predicted) > cfg.max_step_s or (
-                since >= cfg.confirm_s
-                and offset
-                > self._anchor_o + (cfg.rate - 1.0 + cfg.max_drift * cfg.rate) * since + cfg.max_jitter_s
-            )
+            bad = abs(offset - predicted) > cfg.max_step_s
+            if not bad and since >= cfg.confirm_s:
+                if math.isnan(self._anchor_r):
+                    self._settle()
+                r = self._anchor_r
+                bad = offset > self._anchor_o + (r - 1.0 + cfg.max_drift * r) * since + cfg.max_jitter_s
             if bad:
                 # a step, or faster than the drift bound: believed only once STROBEs agreeing with it
                 # persist for confirm_s with none agreeing with the model (one corrupted timestamp, or a
@@ -85,7 +88,8 @@ class StrobeClock:
                 if cand is not None:  # agreeing with the candidate: within max_step_s of it (carried
                     # at the nominal rate), so a lone source running off the drift bound is followed
                     age = now - self._cand_since
-                    if abs(offset - (cfg.rate - 1.0) * age - cand) > cfg.max_step_s:
+                    r = cfg.rate if math.isnan(self._anchor_r) else self._anchor_r
+                    if abs(offset - (r - 1.0) * age - cand) > cfg.max_step_s:
                         cand = None
                 if cand is None:
                     self._candidate = offset
@@ -102,12 +106,32 @@ class StrobeClock:
                 self.resets += 1
         self._candidate = None
         if not self._samples:
-            self._anchor_t, self._anchor_o = now, offset
-        elif now - self._anchor_t < cfg.confirm_s:  # settling: the least delayed STROBE so far
-            self._anchor_o = max(self._anchor_o, offset - (cfg.rate - 1.0) * (now - self._anchor_t))
+            self._anchor_t, self._anchor_o, self._anchor_r = now, offset, math.nan
         self._samples.append((now, offset))
         self.strobes += 1
         self._fit()
+
+    def _settle(self) -> None:
+        """End of the settling period: the rate the source has shown (the configured one unless it is
+        more than 2 % off: an accelerated or misconfigured source is then judged at its own rate) and
+        the least delayed offset at the model's start, o_0, on that rate."""
+        pts = self._samples
+        (t0, o0), (t1, o1) = pts[0], pts[-1]
+        rate = self._cfg.rate
+        r = rate
+        if t1 > t0:
+            raw = 1.0 + (o1 - o0) / (t1 - t0)
+            if abs(raw - rate) > 0.02 * rate:
+                r = raw
+        self._anchor_r = r
+        ta = self._anchor_t
+        self._anchor_o = max(o - (r - 1.0) * (t - ta) for t, o in pts)
+
+    @property
+    def settled_rate(self) -> float | None:
+        """The rate the drift bound is judged at (None while settling): ``clock.rate`` unless the source
+        showed another one (more than 2 % off) while the model settled."""
+        return None if math.isnan(self._anchor_r) else self._anchor_r
 
     def _fit(self) -> None:
         pts = list(self._samples)

@@ -75,6 +75,7 @@ class Resilience:
         self._snapshot: dict[str, Any] | None = None
         self._strobe_rejected = 0
         self._strobe_resets = 0
+        self._rate_warned: float | None = None
 
     # ------------------------------------------------------------------ warnings
     def warn(self, kind: str, now: float, **fields: Any) -> None:
@@ -89,6 +90,10 @@ class Resilience:
             self.warn("strobe_rejected", arrival, timestamp=msg.timestamp,
                       offset_s=msg.timestamp - arrival, model_offset_s=clock.offset_at(arrival),
                       rejected=clock.rejected)
+        rate = clock.settled_rate
+        if rate is not None and rate != self.cfg.clock.rate and rate != self._rate_warned:
+            self._rate_warned = rate
+            self.warn("clock_rate_mismatch", arrival, settled_rate=rate, configured_rate=self.cfg.clock.rate)
         if clock.resets != self._strobe_resets:
             self._strobe_resets = clock.resets
             self.warn("clock_reset", arrival, timestamp=msg.timestamp, resets=clock.resets)

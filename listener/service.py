@@ -212,9 +212,6 @@ class ListenerService:
         self._timer_at = None
         self._work_started = self._loop.time()
         self._send(self.pipeline.handle_timer(self._work_started))
-        body = self.pipeline.resilience.take_checkpoint()
-        if body is not None:
-            self._write_checkpoint(body)
         self._rearm()
 
     # ------------------------------------------------------------------ checkpoint (thin I/O)
@@ -271,6 +268,9 @@ class ListenerService:
                 self.metrics_server.outputs_sent(len(datagrams), self._work_started)
         if self.pipeline.events or self.pipeline.link.transitions_total != self._link_logged:
             self._log_events()
+        body = self.pipeline.resilience.take_checkpoint()  # taken by a timer the pipeline ran (1/s)
+        if body is not None:
+            self._write_checkpoint(body)
 
     def _log_events(self) -> None:
         """Every status, decay and link-state change as its own line, at once (never rate limited)."""
@@ -519,6 +519,7 @@ _EVENT_LEVELS = {
     # issue 20 (listener.resilience): warnings, rate limited where they are raised
     "strobe_rejected": "warning",
     "clock_reset": "warning",
+    "clock_rate_mismatch": "warning",
     "epoch_future": "warning",
     "stale_not_sent": "warning",
     "ground_truth_unconfirmed": "warning",

@@ -49,6 +49,7 @@ def _state(clock: StrobeClock) -> tuple:
         clock._cand_since,
         clock._anchor_t,
         clock._anchor_o,
+        repr(clock._anchor_r),  # NaN while settling (repr: NaN == NaN)
     )
 
 

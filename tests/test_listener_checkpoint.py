@@ -308,3 +308,20 @@ def test_anti_replay_state_survives_a_restart(track):
     assert second.output_epoch.epoch == 101  # past the saved one, never reused
     with pytest.raises(ValueError):
         second.restore_state({"input": [["x", -1, "zz"]]})
+
+
+def test_checkpoint_path_and_atomic_write(tmp_path):
+    from listener.service import checkpoint_path, write_atomic
+
+    cfg = ListenerConfig()
+    assert checkpoint_path(cfg, {}) is None  # no path, no STATE_DIRECTORY: no checkpoint
+    assert checkpoint_path(cfg, {"STATE_DIRECTORY": "/var/lib/sfa:/var/lib/other"}) == \
+        __import__("pathlib").Path("/var/lib/sfa/listener-checkpoint.json")
+    explicit = ListenerConfig(checkpoint=CheckpointConfig(path=str(tmp_path / "c.json")))
+    assert checkpoint_path(explicit, {"STATE_DIRECTORY": "/x"}) == tmp_path / "c.json"
+    assert checkpoint_path(ListenerConfig(checkpoint=CheckpointConfig(enabled=False, path="/y")), {}) is None
+    target = tmp_path / "c.json"
+    for k in range(3):
+        write_atomic(target, ck.encode({"k": k}))
+        assert ck.decode(target.read_bytes()) == {"k": k}
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["c.json"]  # no temporary file left behind

@@ -40,7 +40,8 @@ C_TROUBLE = 11  #: StrobeClock.trouble_at (NaN: None)
 C_CAND_SINCE = 12
 C_ANCHOR_T = 13
 C_ANCHOR_O = 14
-NSTATE = 15
+C_ANCHOR_R = 15  #: StrobeClock._anchor_r (NaN while settling)
+NSTATE = 16
 # slots of the parameter array (ClockConfig)
 P_MAX_STEP = 0
 P_CONFIRM = 1
@@ -107,6 +108,28 @@ def _fit(st, smp_t, smp_o, h0, n, hx, hy):
 
 
 @njit(cache=True, _nrt=False)
+def _settle(st, smp_t, smp_o, h0, n, rate):
+    """StrobeClock._settle over the n samples smp_*[h0:h0 + n]."""
+    t0 = smp_t[h0]
+    o0 = smp_o[h0]
+    t1 = smp_t[h0 + n - 1]
+    o1 = smp_o[h0 + n - 1]
+    r = rate
+    if t1 > t0:
+        raw = 1.0 + (o1 - o0) / (t1 - t0)
+        if abs(raw - rate) > 0.02 * rate:
+            r = raw
+    st[C_ANCHOR_R] = r
+    ta = st[C_ANCHOR_T]
+    best = o0 - (r - 1.0) * (t0 - ta)
+    for i in range(1, n):
+        v = smp_o[h0 + i] - (r - 1.0) * (smp_t[h0 + i] - ta)
+        if v > best:
+            best = v
+    st[C_ANCHOR_O] = best
+
+
+@njit(cache=True, _nrt=False)
 def _on_strobe(ts, t, n, window, prm, st, smp_t, smp_o, hx, hy):
     """``StrobeClock.on_strobe(ts, t)`` on the state: st, and the n samples from slot st[C_HEAD] of the
     mirrored buffers smp_t, smp_o (2 * window: sample slot p is also kept at p + window, so the window
@@ -120,15 +143,18 @@ def _on_strobe(ts, t, n, window, prm, st, smp_t, smp_o, hx, hy):
         if n > 0:
             predicted = st[C_INTERCEPT] + st[C_SLOPE] * (t - st[C_REF])
             since = t - st[C_ANCHOR_T]
-            bad = abs(offset - predicted) > max_step or (
-                since >= confirm
-                and offset > st[C_ANCHOR_O] + (rate - 1.0 + prm[P_DRIFT] * rate) * since + prm[P_JITTER]
-            )
+            bad = abs(offset - predicted) > max_step
+            if not bad and since >= confirm:
+                if math.isnan(st[C_ANCHOR_R]):
+                    _settle(st, smp_t, smp_o, int(st[C_HEAD]), n, rate)
+                r = st[C_ANCHOR_R]
+                bad = offset > st[C_ANCHOR_O] + (r - 1.0 + prm[P_DRIFT] * r) * since + prm[P_JITTER]
             if bad:
                 agree = False
                 if st[C_HAS_CAND] != 0.0:
                     age = t - st[C_CAND_SINCE]
-                    agree = not abs(offset - (rate - 1.0) * age - st[C_CAND]) > max_step
+                    rc = rate if math.isnan(st[C_ANCHOR_R]) else st[C_ANCHOR_R]
+                    agree = not abs(offset - (rc - 1.0) * age - st[C_CAND]) > max_step
                 if not agree:
                     st[C_CAND] = offset
                     st[C_HAS_CAND] = 1.0
@@ -149,10 +175,7 @@ def _on_strobe(ts, t, n, window, prm, st, smp_t, smp_o, hx, hy):
             if n == 0:
                 st[C_ANCHOR_T] = t
                 st[C_ANCHOR_O] = offset
-            elif t - st[C_ANCHOR_T] < confirm:  # max(o_0, offset - (rate - 1) * (t - t_0)) as Python's max
-                cand_o = offset - (rate - 1.0) * (t - st[C_ANCHOR_T])
-                if cand_o > st[C_ANCHOR_O]:
-                    st[C_ANCHOR_O] = cand_o
+                st[C_ANCHOR_R] = math.nan
             head = int(st[C_HEAD])
             if n == window:  # deque(maxlen=window).append drops the oldest
                 head += 1
@@ -248,6 +271,7 @@ def _state_of(clock):
     st[C_CAND_SINCE] = clock._cand_since
     st[C_ANCHOR_T] = clock._anchor_t
     st[C_ANCHOR_O] = clock._anchor_o
+    st[C_ANCHOR_R] = clock._anchor_r
     st[C_N] = len(samples)
     st[C_HEAD] = 0
     size = max(window, 1)
@@ -277,6 +301,7 @@ def _set_state(clock, window, st, smp_t, smp_o) -> None:
     clock._cand_since = float(st[C_CAND_SINCE])
     clock._anchor_t = float(st[C_ANCHOR_T])
     clock._anchor_o = float(st[C_ANCHOR_O])
+    clock._anchor_r = float(st[C_ANCHOR_R])
 
 
 def _params(clock) -> np.ndarray:
