@@ -19,7 +19,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from test_listener_pipeline import _datagrams
+from test_listener_pipeline import PORTS, _datagrams
 
 from interface_modules.presets import GPS_PRESETS, IMU_PRESETS, ODOMETER_PRESETS
 from listener import checkpoint as ck
@@ -256,24 +256,40 @@ def test_a_bad_checkpoint_is_refused_with_a_reason_and_ground_truth_awaited(worl
     assert json.loads(ckpt.read_text())["format"] == ck.FORMAT  # replaced by a good one (SIGTERM)
 
 
+CTL = ("127.0.0.1", PORTS["ctl"])  # forgeries leave from the control module's socket (spoofed source)
+
+
 def _shifted(rows, a0: float, a1: float, rate_hz: float, make) -> list:
     t0 = rows[0][0]
-    return [(t0 + a0 + k / rate_hz, ("127.0.0.1", 47999), make(k, a0 + k / rate_hz))
-            for k in range(int((a1 - a0) * rate_hz))]
+    n = int((a1 - a0) * rate_hz)
+    return [(t0 + a0 + k / rate_hz + 0.0003, CTL, make(a0 + k / rate_hz)) for k in range(n)]
 
 
-def test_forged_ground_truth_and_shifted_strobes_from_another_port(world, tmp_path):
-    """At 6 s a GROUND TRUTH at 2,000 m from a new port (issue 20: 1,800 m error); from 10 s to 20 s
-    STROBE at 2 Hz shifted by +100 s from that port (issue 20: no output for the whole attack, status
-    nominal). The filter is not moved, outputs keep their rate, the extended status is DEGRADED
+def _resequenced(rows) -> list:
+    """The control module's SEQs renumbered in time order (the forgeries are inside its stream)."""
+    seq = None
+    out = []
+    for t, addr, p in sorted(rows, key=lambda r: r[0]):
+        if addr == CTL:
+            seq = int.from_bytes(p[1:3], "little") if seq is None else (seq + 1) & 0xFFFF
+            p = p[:1] + seq.to_bytes(2, "little") + p[3:]
+        out.append((t, addr, p))
+    return out
+
+
+def test_forged_ground_truth_and_shifted_strobes_from_the_control_socket(world, tmp_path):
+    """At 6 s a GROUND TRUTH at 2,000 m (issue 20: 1,800 m error); from 10 s to 20 s STROBE at 2 Hz
+    shifted by +100 s (issue 20: no output for the whole attack, status nominal); both from the
+    control module's own socket, inside its SEQ stream (a spoofed source: a sender table cannot tell).
+    The filter is not moved, outputs keep their rate, the extended status is DEGRADED
     (clock_untrusted) during the attack, and both are logged as warnings."""
     run = world["run"]
     dgrams = [d for d in _datagrams(run, start_seq=3) if d[2][0] != 10]
     epoch0 = run.t_s[0]
     forged = _shifted(dgrams, 6.0, 6.5, 2.0,
-                      lambda k, t: encode_input(GroundTruth(k, 5.0, 0.0, 0.0, 2000.0, 1, epoch0 + t)))
-    forged += _shifted(dgrams, 10.0, 20.0, 2.0, lambda k, t: encode_input(Strobe(1 + k, epoch0 + t + 100.0)))
-    rows = sorted(dgrams + forged, key=lambda r: r[0])
+                      lambda t: encode_input(GroundTruth(0, 5.0, 0.0, 0.0, 2000.0, 1, epoch0 + t)))
+    forged += _shifted(dgrams, 10.0, 20.0, 2.0, lambda t: encode_input(Strobe(0, epoch0 + t + 100.0)))
+    rows = _resequenced(dgrams + forged)
     lport, obcu = _free_port(), Obcu()
     log = tmp_path / "listener.log"
     proc = _listener(world, log, lport, obcu.port, "--set", "link.extended=true")
