@@ -175,6 +175,21 @@ class ReplayWindow:
         else:
             self._bits |= 1 << (self.newest - ext)
 
+    def export(self) -> tuple[int | None, str]:
+        """(newest, accepted bits as hex) for a checkpoint (:meth:`restore` reads it back)."""
+        return self.newest, format(self._bits, "x")
+
+    @classmethod
+    def restore(cls, size: int, newest: int | None, bits_hex: str) -> ReplayWindow:
+        """A window as :meth:`export` saved it (bits beyond ``size`` dropped); ValueError on bad values."""
+        w = cls(size)
+        if newest is not None:
+            if isinstance(newest, bool) or not isinstance(newest, int) or newest < 0:
+                raise ValueError(f"replay window newest {newest!r}: not a non-negative integer")
+            w.newest = newest
+            w._bits = int(bits_hex, 16) & ((1 << size) - 1)
+        return w
+
 
 @dataclass(frozen=True)
 class AuthConfig:

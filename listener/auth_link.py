@@ -21,10 +21,12 @@ from typing import Any
 from listener.auth import (
     HEADER_BYTES,
     MAGIC,
+    MAX_EPOCH,
     AuthConfig,
     AuthReason,
     AuthState,
     EpochCounter,
+    ReplayWindow,
     derive_link_key,
     output_seq,
     unwrap,
@@ -104,6 +106,30 @@ class LinkAuth:
 
     def seal_output(self, payload: bytes, seq: int) -> bytes:
         return wrap(payload, self.key_output, self.output_epoch.epoch_for(seq), tag_bytes=self.tag_bytes)
+
+    def export_state(self) -> dict[str, Any]:
+        """The anti-replay windows and the output epoch counter, JSON-serialisable (a checkpoint)."""
+        def windows(state: AuthState) -> list[list[Any]]:
+            return [[k, *w.export()] for k, w in state.windows.items()]
+
+        return {"input": windows(self.input_state), "ack": windows(self.ack_state),
+                "output_epoch": self.output_epoch.epoch}
+
+    def restore_state(self, data: dict[str, Any]) -> None:
+        """Take back what :meth:`export_state` saved: the windows, and an output epoch past the saved one
+        (never lower than the one this process started with). ValueError on a malformed state."""
+        for name, state in (("input", self.input_state), ("ack", self.ack_state)):
+            rows = data.get(name, [])
+            if not isinstance(rows, list):
+                raise ValueError(f"auth.{name}: not a list")
+            for row in rows[-state.cfg.max_senders:]:
+                if not (isinstance(row, list) and len(row) == 3 and isinstance(row[2], str)):
+                    raise ValueError(f"auth.{name}: malformed window {row!r}")
+                state.windows[row[0]] = ReplayWindow.restore(state.cfg.window, row[1], row[2])
+        epoch = data.get("output_epoch", 0)
+        if isinstance(epoch, bool) or not isinstance(epoch, int) or not 0 <= epoch < MAX_EPOCH:
+            raise ValueError(f"auth.output_epoch {epoch!r}: not an epoch counter")
+        self.output_epoch.epoch = max(self.output_epoch.epoch, epoch + 1)
 
     def stats(self) -> dict[str, Any]:
         return {

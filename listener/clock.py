@@ -15,9 +15,21 @@ An accelerated live run (the simulator at ``--speed X``) has a sensor clock X ti
 listener's; ``ClockConfig.rate = X`` centres the skew bound on it (otherwise the offset would be
 extrapolated flat and every gap between STROBEs would look like a step).
 
-A step larger than ``max_step_s`` between the prediction and a new STROBE (sensor-set clock reset,
-listener restart) discards the window and restarts the estimate, once a second STROBE confirms the
-new offset: a single corrupted timestamp is ignored (counted as ``unconfirmed``).
+Robustness (issue 20): a STROBE is not taken into the model when it would step the timebase (more
+than ``max_step_s`` from the prediction) or, once the model has settled (``confirm_s`` after its
+start), move it forward faster than the drift bound allows: its offset may exceed the settled
+offset ``o_0`` by at most ``(rate - 1 + max_drift * rate) * (now - t_0) + max_jitter_s``
+(SUBSET-041: 0.1 %; the upper envelope could otherwise be dragged forward a jitter allowance at a
+time). ``rate`` is ``clock.rate``, or the rate the source showed while the model settled when that
+is more than 2 % off (a misconfigured or accelerated source, logged as ``clock_rate_mismatch``).
+Such a STROBE becomes the candidate for a new offset (counted ``unconfirmed``; every STROBE not
+taken is counted ``rejected`` and dates ``trouble_at``). The candidate is adopted (the window
+discarded and the estimate restarted: a sensor-set clock reset, a listener restart) only when
+STROBEs agreeing with it (within ``max_step_s`` of it, carried at the rate) keep coming for
+``confirm_s`` and none agrees with the current model in between: a forger interleaving shifted or
+ramping STROBEs with the real ones never gets there (each real STROBE agrees with the model and
+clears the candidate); a real reset does. With ``confirm_s = 0`` the second agreeing STROBE adopts
+it (the rule before issue 20).
 """
 
 from __future__ import annotations
@@ -40,7 +52,13 @@ class StrobeClock:
         self.resets = 0  #: times the model was restarted by a clock step
         self.strobes = 0  #: STROBEs used
         self.unconfirmed = 0  #: STROBEs that disagreed with the model and were not (yet) confirmed
+        self.rejected = 0  #: STROBEs not taken (a step or beyond the drift bound, not yet persisted)
+        self.trouble_at: float | None = None  #: listener time of the last STROBE not taken
         self._candidate: float | None = None
+        self._cand_since = 0.0  # listener time the candidate was first seen
+        self._anchor_t = 0.0  # start of the model (t_0) [listener s]
+        self._anchor_o = 0.0  # settled offset o_0 at t_0 [s]
+        self._anchor_r = math.nan  # settled rate (NaN while settling) [sensor s per listener s]
 
     @property
     def synced(self) -> bool:
@@ -52,22 +70,68 @@ class StrobeClock:
         if not math.isfinite(timestamp_s) or not math.isfinite(now):
             return
         offset = timestamp_s - now
+        cfg = self._cfg
         if self._samples:
             predicted = self.offset_at(now)
-            if abs(offset - predicted) > self._cfg.max_step_s:
-                # a step: believed only when the next STROBE confirms it (one corrupted timestamp
-                # must not move the timebase)
+            since = now - self._anchor_t
+            bad = abs(offset - predicted) > cfg.max_step_s
+            if not bad and since >= cfg.confirm_s:
+                if math.isnan(self._anchor_r):
+                    self._settle()
+                r = self._anchor_r
+                bad = offset > self._anchor_o + (r - 1.0 + cfg.max_drift * r) * since + cfg.max_jitter_s
+            if bad:
+                # a step, or faster than the drift bound: believed only once STROBEs agreeing with it
+                # persist for confirm_s with none agreeing with the model (one corrupted timestamp, or a
+                # forger's stream beside the real one, must not move the timebase)
                 cand = self._candidate
-                if cand is None or abs(offset - cand) > self._cfg.max_step_s:
+                if cand is not None:  # agreeing with the candidate: within max_step_s of it (carried
+                    # at the nominal rate), so a lone source running off the drift bound is followed
+                    age = now - self._cand_since
+                    r = cfg.rate if math.isnan(self._anchor_r) else self._anchor_r
+                    if abs(offset - (r - 1.0) * age - cand) > cfg.max_step_s:
+                        cand = None
+                if cand is None:
                     self._candidate = offset
+                    self._cand_since = now
                     self.unconfirmed += 1
+                    self.rejected += 1
+                    self.trouble_at = now
+                    return
+                if now - self._cand_since < cfg.confirm_s:
+                    self.rejected += 1
+                    self.trouble_at = now
                     return
                 self._samples.clear()
                 self.resets += 1
         self._candidate = None
+        if not self._samples:
+            self._anchor_t, self._anchor_o, self._anchor_r = now, offset, math.nan
         self._samples.append((now, offset))
         self.strobes += 1
         self._fit()
+
+    def _settle(self) -> None:
+        """End of the settling period: the rate the source has shown (the configured one unless it is
+        more than 2 % off: an accelerated or misconfigured source is then judged at its own rate) and
+        the least delayed offset at the model's start, o_0, on that rate."""
+        pts = self._samples
+        (t0, o0), (t1, o1) = pts[0], pts[-1]
+        rate = self._cfg.rate
+        r = rate
+        if t1 > t0:
+            raw = 1.0 + (o1 - o0) / (t1 - t0)
+            if abs(raw - rate) > 0.02 * rate:
+                r = raw
+        self._anchor_r = r
+        ta = self._anchor_t
+        self._anchor_o = max(o - (r - 1.0) * (t - ta) for t, o in pts)
+
+    @property
+    def settled_rate(self) -> float | None:
+        """The rate the drift bound is judged at (None while settling): ``clock.rate`` unless the source
+        showed another one (more than 2 % off) while the model settled."""
+        return None if math.isnan(self._anchor_r) else self._anchor_r
 
     def _fit(self) -> None:
         pts = list(self._samples)

@@ -62,6 +62,17 @@ class ClockConfig:
     #: 1 on a train (the skew estimate is then bounded to +-1000 ppm around it); the simulator's
     #: --speed for an accelerated live run, whose sensor clock runs that many times faster [-]
     rate: float = 1.0
+    #: drift bound of the sensor-set clock against the listener's (SUBSET-041: 0.1 %): a STROBE that
+    #: would move the timebase faster than this (beyond the jitter allowance) is not taken [-]
+    max_drift: float = 1e-3
+    #: how much earlier than the model a STROBE may arrive and still be taken (delay jitter) [s]
+    max_jitter_s: float = 0.05
+    #: a new offset (a step, or a drift beyond the bound) is adopted only after STROBEs agreeing with it,
+    #: and none agreeing with the current model, for this long [s]
+    confirm_s: float = 5.0
+    #: the status stays DEGRADED (reason clock_untrusted) this long after a STROBE was rejected or a
+    #: measurement's epoch disagreed with the timebase [s]
+    trouble_hold_s: float = 10.0
 
 
 @dataclass(frozen=True)
@@ -154,6 +165,49 @@ class VitalConfig:
 
 
 @dataclass(frozen=True)
+class PlausibilityConfig:
+    """Plausibility of GROUND TRUTH and of the published arc length (docs/listener.md, "Plausibility")."""
+
+    enabled: bool = True  #: false: GROUND TRUTH always applied, outputs never vetted (the listener before)
+    #: the line's maximum speed where the track database's line has no ``maxspeed`` tag [m/s]
+    #: (44.5 = 160 km/h, the fastest train preset on the bundled lines)
+    max_speed_mps: float = 44.5
+    speed_margin: float = 1.2  #: the change of the arc length may exceed the limit x time by this factor [-]
+    #: the change between outputs may exceed the speed bound by this plus 3 sigma of the last output
+    #: (filter corrections: a GNSS fix after a gap) [m]
+    step_allowance_m: float = 25.0
+    arc_margin_m: float = 50.0  #: the published arc length stays within [-margin, length + margin] [m]
+    #: a GROUND TRUTH disagreeing with a NOMINAL filter is confirmed by a second one within this [s]
+    gt_confirm_window_s: float = 30.0
+    #: ... that agrees with it (after carrying the first forward at its speed) to within this [m]
+    gt_confirm_tolerance_m: float = 10.0
+
+
+@dataclass(frozen=True)
+class CheckpointConfig:
+    """State checkpoint for a restart without GROUND TRUTH (docs/listener.md, "Checkpoint and restart")."""
+
+    enabled: bool = True  #: write and resume checkpoints (``sfa listen`` only; a replay never does)
+    #: checkpoint file; "" = $STATE_DIRECTORY/listener-checkpoint.json when STATE_DIRECTORY is set
+    #: (systemd's StateDirectory=), else no checkpoint
+    path: str = ""
+    interval_s: float = 1.0  #: period of the checkpoint [s]
+    max_age_s: float = 10.0  #: an older checkpoint is refused at start [s]
+    #: output SEQ of the first output after a resume: the checkpointed next SEQ plus this (more than the
+    #: outputs sent between the last checkpoint and the exit; less than 32768) [count]
+    seq_skip: int = 4096
+    max_accel_mps2: float = 3.0  #: speed sigma widening per second of gap (emergency braking) [m/s^2]
+    #: the first sensor time after the restart must match the checkpoint's plus the elapsed time to
+    #: within this, else the checkpoint is refused (sensor-set clock reset) [s]
+    clock_tolerance_s: float = 2.0
+    #: a seed whose widened arc-length sigma exceeds this is refused (wait for GROUND TRUTH); above the
+    #: filter's LOST bound (lost_sigma_m) the resumed estimates are not sent until GNSS narrows them [m]
+    max_sigma_m: float = 500.0
+    reanchor_gnss: int = 1  #: accepted GNSS fixes needed before the resumed status may be NOMINAL [count]
+    reanchor_odometer: int = 5  #: accepted odometer samples needed too [count]
+
+
+@dataclass(frozen=True)
 class MetricsConfig:
     """Prometheus endpoint (off by default)."""
 
@@ -179,7 +233,12 @@ class ListenerConfig:
     metrics: MetricsConfig = field(default_factory=MetricsConfig)
     #: which source may send which SENSOR_TYPE (listener.senders; default: trust on first use)
     senders: SendersConfig = field(default_factory=SendersConfig)
+    plausibility: PlausibilityConfig = field(default_factory=PlausibilityConfig)
+    checkpoint: CheckpointConfig = field(default_factory=CheckpointConfig)
     watchdog_max_lag_s: float = 0.5  #: event-loop lag beyond which WATCHDOG=1 is withheld [s]
+    #: exit status of ``sfa listen`` after a STOP datagram (0 by default, as docs/interfaces say; the
+    #: shipped systemd unit sets 10 with Restart=always and RestartPreventExitStatus=10) [0..255]
+    stop_exit_status: int = 0
 
 
 _SECTIONS = {
@@ -192,6 +251,8 @@ _SECTIONS = {
     "auth": AuthSettings,
     "vital": VitalConfig,
     "metrics": MetricsConfig,
+    "plausibility": PlausibilityConfig,
+    "checkpoint": CheckpointConfig,
 }
 
 
@@ -248,6 +309,27 @@ def _validate(cfg: ListenerConfig) -> None:
     need(cfg.clock.max_step_s > 0.0, "clock.max_step_s", "must be > 0")
     need(cfg.clock.max_future_s > 0.0, "clock.max_future_s", "must be > 0")
     need(0.01 <= cfg.clock.rate <= 1000.0, "clock.rate", "must be in 0.01..1000")
+    need(0.0 < cfg.clock.max_drift <= 0.1, "clock.max_drift", "must be in (0, 0.1]")
+    need(cfg.clock.max_jitter_s >= 0.0, "clock.max_jitter_s", "must be >= 0")
+    need(cfg.clock.confirm_s >= 0.0, "clock.confirm_s", "must be >= 0")
+    need(cfg.clock.trouble_hold_s >= 0.0, "clock.trouble_hold_s", "must be >= 0")
+    pl = cfg.plausibility
+    need(pl.max_speed_mps > 0.0, "plausibility.max_speed_mps", "must be > 0")
+    need(pl.speed_margin >= 1.0, "plausibility.speed_margin", "must be >= 1")
+    need(pl.step_allowance_m >= 0.0, "plausibility.step_allowance_m", "must be >= 0")
+    need(pl.arc_margin_m >= 0.0, "plausibility.arc_margin_m", "must be >= 0")
+    need(pl.gt_confirm_window_s > 0.0, "plausibility.gt_confirm_window_s", "must be > 0")
+    need(pl.gt_confirm_tolerance_m > 0.0, "plausibility.gt_confirm_tolerance_m", "must be > 0")
+    ck = cfg.checkpoint
+    need(ck.interval_s > 0.0, "checkpoint.interval_s", "must be > 0")
+    need(ck.max_age_s > 0.0, "checkpoint.max_age_s", "must be > 0")
+    need(0 <= ck.seq_skip <= 32767, "checkpoint.seq_skip", "must be in 0..32767")
+    need(ck.max_accel_mps2 > 0.0, "checkpoint.max_accel_mps2", "must be > 0")
+    need(ck.clock_tolerance_s > 0.0, "checkpoint.clock_tolerance_s", "must be > 0")
+    need(ck.max_sigma_m > 0.0, "checkpoint.max_sigma_m", "must be > 0")
+    need(ck.reanchor_gnss >= 0, "checkpoint.reanchor_gnss", "must be >= 0")
+    need(ck.reanchor_odometer >= 0, "checkpoint.reanchor_odometer", "must be >= 0")
+    need(0 <= cfg.stop_exit_status <= 255, "stop_exit_status", "must be in 0..255")
     need(cfg.merge.hold_s >= 0.0, "merge.hold_s", "must be >= 0")
     need(cfg.merge.max_pending >= 1, "merge.max_pending", "must be >= 1")
     need(1 <= cfg.link.obcu_port <= 65535, "link.obcu_port", "must be in 1..65535")

@@ -129,6 +129,16 @@ def _families(snap: dict[str, Any]):
         c = CounterMetricFamily(f"sfa_link_{key}", doc)
         c.add_metric([], link[key])
         yield c
+    res = m.get("resilience")
+    if res is not None:  # issue 20: warnings of the resilience stage, by kind; STROBEs rejected
+        c = CounterMetricFamily("sfa_warnings", "warning events raised (logged or rate-limited), by kind",
+                                labels=["kind"])
+        for kind, n in res["warnings"].items():
+            c.add_metric([kind], n)
+        yield c
+        c = CounterMetricFamily("sfa_clock_rejected_strobes", "STROBEs not taken into the timebase")
+        c.add_metric([], m["clock"]["rejected_strobes"])
+        yield c
 
 
 class MetricsServer:

@@ -84,6 +84,15 @@ class ObcuLink:
         self.bogus_acks = 0
         self.bad_acks = 0
 
+    @property
+    def next_seq(self) -> int:
+        """SEQ the next new output will carry."""
+        return self._next_seq
+
+    def continue_at(self, seq: int) -> None:
+        """Number the next new output ``seq`` (a resumed listener continues past the SEQs it sent)."""
+        self._next_seq = int(seq) & 0xFFFF
+
     # ------------------------------------------------------------------ estimates
     def send_estimate(self, estimate, now: float) -> list[bytes]:
         """A new estimate from the filter (``(epoch, arc_length, ...)``); returns datagrams to send."""

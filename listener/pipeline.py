@@ -27,6 +27,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
+from listener import resilience
 from listener.auth import AuthError
 from listener.auth_link import LinkAuth
 from listener.clock import StrobeClock
@@ -169,6 +170,23 @@ class Pipeline:
         self._sources: dict[Any, str] = {}  # addr -> source string (bounded cache)
         self._seq_warnings = WarningLimiter(self.cfg.senders.warning_interval_s)
         self.events.extend(self.senders.start_events(0.0))
+        # ---- plausibility, clock trouble, checkpoint and resume (listener.resilience)
+        #: name -> (save() -> JSON-serialisable, restore(saved) or None): components' state kept in the
+        #: checkpoint's ``extra`` dict (docs/listener.md, "Checkpoint and restart")
+        self.checkpoint_extra: dict[str, tuple[Callable[[], Any], Callable[[Any], None] | None]] = {}
+        self.resilience = resilience.Resilience(self, track)
+        # the sender bindings (trust on first use) survive a restart in the checkpoint
+        self.checkpoint_extra["senders"] = (self.senders.snapshot, self.senders.restore)
+
+    @property
+    def observed_status(self) -> int | None:
+        """The status last observed (outputs and timer), a FilterStatus value; None before any."""
+        return self._status
+
+    def mark_initialised(self, now: float) -> None:
+        """The filter was (re)initialised at ``now`` other than by a measurement (a checkpoint seed)."""
+        self._init_now = now
+        self._timed_out.clear()
 
     # ------------------------------------------------------------------ inputs
     def receive(self, data: bytes, addr: Any, now: float) -> list[bytes]:
@@ -262,7 +280,8 @@ class Pipeline:
         """Listener time at which :meth:`handle_timer` should run next."""
         times = [
             t
-            for t in (self.streams.next_deadline(), self.link.next_timer(), self._supervision_deadline())
+            for t in (self.streams.next_deadline(), self.link.next_timer(), self._supervision_deadline(),
+                      self.resilience.next_timer())
             if t is not None
         ]
         return min(times) if times else None
@@ -277,6 +296,7 @@ class Pipeline:
         if due is not None and now >= due:
             out.extend(self._supervise(now))
         out.extend(self.link.handle_timer(now))
+        self.resilience.tick(now)
         return out
 
     def take_events(self) -> list[dict[str, Any]]:
@@ -313,6 +333,7 @@ class Pipeline:
             if isinstance(msg, Strobe):
                 self.counters["strobes"] += 1
                 self.clock.on_strobe(msg.timestamp, item.arrival)
+                self.resilience.after_strobe(msg, item.arrival)
                 self._date_undated()
             elif isinstance(msg, Stop):
                 self.counters["stops"] += 1
@@ -344,6 +365,7 @@ class Pipeline:
                 self.counters["rejected"] += 1
                 self.rejected["epoch_future"] += 1
                 self.give_back_seq(item)
+                self.resilience.warn("epoch_future", item.arrival, epoch=epoch, sensor_now=ref)
                 return
             self.counters["dated_by_epoch"] += 1
         if epoch > self._newest_epoch:
@@ -381,6 +403,8 @@ class Pipeline:
         while heap and (heap[0][0] <= horizon or len(heap) > self.cfg.merge.max_pending):
             t, _, msg = heapq.heappop(heap)
             meas = to_measurement(msg, t)
+            if not self.resilience.before_measurement(meas, now):
+                continue  # a GROUND TRUTH held for confirmation
             if self.on_measurement is not None:
                 self.on_measurement(meas)
             update = filt.process(meas)
@@ -388,10 +412,10 @@ class Pipeline:
                 self.on_update(update)
             self.counters["processed"] += 1
             self.counters[f"outcome_{update.kind}_{_outcome_name(update.outcome)}"] += 1
-            est = filt.estimate()
             if update.kind == "init" and int(update.outcome) == 6:  # Outcome.INITIALISED
                 self._init_now = now
                 self._timed_out.clear()
+            est = self.resilience.vet(filt.estimate(), update, now)
             if math.isfinite(est.epoch_s):
                 self._observe(est, now, "update")
                 self._note(self.vital.on_update(update.kind, int(update.outcome), int(est.status),
@@ -442,7 +466,7 @@ class Pipeline:
             self._recheck_at = None
             self._note(self.vital.observe(self._status or 0, self._reasons, now), now)
             return []
-        est = self.filter.estimate(at_s=t, propagate=True)
+        est = self.resilience.vet(self.filter.estimate(at_s=t, propagate=True), None, now)
         if self._init_now is not None:
             rate, margin = self.cfg.clock.rate, self.cfg.vital.timeout_margin_s
             for name, mod in self.modules.items():
@@ -468,9 +492,10 @@ class Pipeline:
         if not self._standard_sendable(int(est.status)) and not self.cfg.link.extended:
             self.link.withhold(now)
             return []
-        if self.cfg.link.extended:
+        if self.cfg.link.extended and self.resilience.publishable(est, now):
             self.vital_counters["timer_outputs"] += 1
             self.last_estimate = est
+            self.resilience.sent(est)
             return self.link.send_estimate(est, now)
         return []
 
@@ -540,6 +565,7 @@ class Pipeline:
         if sensor_now is not None and est.epoch_s < sensor_now - stale_before:
             # behind by more than the freshness bound (a backlog): never sent as a fresh estimate
             self.counters["stale_not_sent"] += 1
+            self.resilience.warn("stale_not_sent", now, epoch=est.epoch_s, sensor_now=sensor_now)
             return []
         if est.epoch_s < self._last_output_epoch:
             return []
@@ -549,12 +575,15 @@ class Pipeline:
             and (est.arc_length_m == self.last_estimate.arc_length_m)
         ):
             return []
+        if not self.resilience.publishable(est, now):
+            return []
         self._last_output_epoch = est.epoch_s
         self.last_estimate = est
         if not self.cfg.link.extended and not self._standard_sendable(int(est.status)):
             self.vital_counters["withheld"] += 1
             self.link.withhold(now)
             return []
+        self.resilience.sent(est)
         return self.link.send_estimate(est, now)
 
     def _encode_estimate(self, seq: int, est) -> bytes:
@@ -667,10 +696,12 @@ class Pipeline:
                 "unconfirmed_strobes": self.clock.unconfirmed,
                 "strobes": self.clock.strobes,
                 "resets": self.clock.resets,
+                "rejected_strobes": self.clock.rejected,
                 "undated_pending": len(self._undated),
             },
             "merge": {"pending": len(self._heap)},
             "auth": None if self.auth is None else self.auth.stats(),
+            "resilience": self.resilience.stats(),
             "filter": {
                 "outcomes": {
                     k[len("outcome_") :]: v

@@ -25,8 +25,10 @@ import os
 import signal
 import socket
 import time
+from pathlib import Path
 from typing import Any
 
+from listener import checkpoint as ckpt
 from listener.codec import HEADER_SIZE, INPUT_FORMS, RejectReason, SensorType
 from listener.config import ListenerConfig
 from listener.jsonlog import JsonLogger
@@ -148,6 +150,7 @@ class ListenerService:
         self._wd_processed = -1  # pipeline 'processed' and 'received' at the last watchdog tick
         self._wd_received = -1
         self.bound_port: int | None = None
+        self.checkpoint_path: Path | None = checkpoint_path(config)
 
     # ------------------------------------------------------------------ I/O callbacks
     def on_input(self, data: bytes, addr: Any) -> None:
@@ -213,6 +216,49 @@ class ListenerService:
             self._finish("stop datagram")
         self._rearm()
 
+    # ------------------------------------------------------------------ checkpoint (thin I/O)
+    def _write_checkpoint(self, body: dict[str, Any]) -> None:
+        """Write ``body`` atomically (temporary file, fsync, rename, fsync of the directory)."""
+        path = self.checkpoint_path
+        if path is None:
+            return
+        body["taken"] = {**body["taken"], "monotonic": time.monotonic(), "wall": time.time(),
+                         "boot_id": boot_id()}
+        try:
+            write_atomic(path, ckpt.encode(body))
+            self.counters["checkpoints_written"] = self.counters.get("checkpoints_written", 0) + 1
+        except (OSError, ValueError) as exc:
+            self.counters["checkpoint_errors"] = self.counters.get("checkpoint_errors", 0) + 1
+            self.log.warning("checkpoint_write_failed", path=str(path), error=str(exc))
+
+    def _load_checkpoint(self, now: float) -> None:
+        """Resume from the checkpoint file if there is an acceptable one; else say why and wait for
+        GROUND TRUTH. Then checkpoints start."""
+        path = self.checkpoint_path
+        if path is None:
+            self.log.info("checkpoint_off", why="checkpoint.enabled is false, or no checkpoint.path and no "
+                          "STATE_DIRECTORY")
+            return
+        res = self.pipeline.resilience
+        try:
+            data = path.read_bytes()
+        except FileNotFoundError:
+            self.log.info("checkpoint_none", path=str(path))
+            data = None
+        except OSError as exc:
+            res.refused(ckpt.CheckpointError("unreadable", str(exc)), now)
+            data = None
+        if data is not None:
+            try:
+                body = ckpt.decode(data)
+                plan = ckpt.assess(body, track_fp=res.fingerprint(), wall_now=time.time(),
+                                   mono_now=time.monotonic(), boot_id=boot_id(), config=self.cfg.checkpoint)
+                res.resume(plan, now)
+            except ckpt.CheckpointError as exc:
+                res.refused(exc, now)
+        res.enable_checkpoints(now)
+        self._log_events()
+
     def _send(self, datagrams: list[bytes]) -> None:
         if datagrams and self._out is not None:
             for payload in datagrams:
@@ -224,6 +270,9 @@ class ListenerService:
                 self.metrics_server.outputs_sent(len(datagrams), self._work_started)
         if self.pipeline.events or self.pipeline.link.transitions_total != self._link_logged:
             self._log_events()
+        body = self.pipeline.resilience.take_checkpoint()  # taken by a timer the pipeline ran (1/s)
+        if body is not None:
+            self._write_checkpoint(body)
 
     def _log_events(self) -> None:
         """Every status, decay and link-state change as its own line, at once (never rate limited)."""
@@ -344,6 +393,7 @@ class ListenerService:
         except OSError as exc:
             what = "OBCU (link.obcu_host, link.obcu_port)"
             raise address_error(exc, what, link.obcu_host, link.obcu_port) from None
+        self._load_checkpoint(loop.time())
         if warm_up:
             t0 = time.perf_counter()
             self.pipeline.filter.warm_up()
@@ -385,6 +435,7 @@ class ListenerService:
                 self._send(self.pipeline.flush(loop.time()))
             if self._timer is not None:
                 self._timer.cancel()
+            self._final_checkpoint(loop.time())
             self.log.info("exit", reason=self._exit_reason, **self.metrics())
             if self._reading:
                 loop.remove_reader(sock.fileno())
@@ -401,7 +452,63 @@ class ListenerService:
                     loop.remove_signal_handler(sig)
                 except (NotImplementedError, RuntimeError):  # pragma: no cover
                     pass
-        return 0
+        return self.cfg.stop_exit_status if self.pipeline.stopped else 0
+
+    def _final_checkpoint(self, now: float) -> None:
+        """At a signal: one last checkpoint (a planned restart resumes); after a STOP datagram the file is
+        removed (the operator ended the run: the next start waits for GROUND TRUTH)."""
+        path = self.checkpoint_path
+        res = self.pipeline.resilience
+        if path is None or res.checkpointer is None:
+            return
+        if self.pipeline.stopped:
+            try:
+                path.unlink()
+                self.log.info("checkpoint_removed", path=str(path), why="STOP")
+            except FileNotFoundError:
+                pass
+            except OSError as exc:
+                self.log.warning("checkpoint_remove_failed", path=str(path), error=str(exc))
+            return
+        self._write_checkpoint(res.body(now))
+
+
+def checkpoint_path(cfg: ListenerConfig, environ: dict[str, str] | None = None) -> Path | None:
+    """Where checkpoints go: ``checkpoint.path``, else ``$STATE_DIRECTORY/listener-checkpoint.json`` (the
+    first directory when systemd lists several), else None (no checkpoint)."""
+    ck = cfg.checkpoint
+    if not ck.enabled:
+        return None
+    if ck.path:
+        return Path(ck.path)
+    state = (os.environ if environ is None else environ).get("STATE_DIRECTORY", "")
+    first = state.split(":")[0]
+    return Path(first) / "listener-checkpoint.json" if first else None
+
+
+def write_atomic(path: Path, data: bytes) -> None:
+    """Replace ``path`` by ``data`` so that a crash leaves either the old or the new file, whole."""
+    tmp = path.with_name(f".{path.name}.tmp")
+    fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o600)
+    try:
+        os.write(fd, data)
+        os.fsync(fd)
+    finally:
+        os.close(fd)
+    os.replace(tmp, path)
+    dfd = os.open(path.parent, os.O_RDONLY)
+    try:
+        os.fsync(dfd)
+    finally:
+        os.close(dfd)
+
+
+def boot_id() -> str | None:
+    """This boot's id (Linux), so a checkpoint's monotonic time is compared only within one boot."""
+    try:
+        return Path("/proc/sys/kernel/random/boot_id").read_text().strip()
+    except OSError:
+        return None
 
 
 #: log level of each event kind (journald priority follows: journalctl -p warning shows all but info)
@@ -414,6 +521,20 @@ _EVENT_LEVELS = {
     "decay_reinitialised": "info",
     "decay_released": "warning",
     "reasons": "info",
+    # issue 20 (listener.resilience): warnings, rate limited where they are raised
+    "strobe_rejected": "warning",
+    "clock_reset": "warning",
+    "clock_rate_mismatch": "warning",
+    "epoch_future": "warning",
+    "stale_not_sent": "warning",
+    "ground_truth_unconfirmed": "warning",
+    "ground_truth_rejected": "warning",
+    "ground_truth_confirmed": "warning",
+    "output_implausible": "warning",
+    "checkpoint_refused": "warning",
+    "checkpoint_superseded": "warning",
+    "checkpoint_loaded": "info",
+    "resumed": "warning",
 }
 
 

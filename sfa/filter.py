@@ -258,6 +258,44 @@ class TrackFilter:
             ]
         return out
 
+    def seed(self, t_s: float, line_id: int | None, arc_length_m: float, speed_mps: float, direction: int,
+             sigma_s_m: float, sigma_v_mps: float,
+             errors: dict[str, tuple[float, float]] | None = None) -> Update:
+        """Initialise from a saved state (a listener checkpoint) instead of a GROUND TRUTH.
+
+        As a GROUND TRUTH at ``t_s`` on ``line_id`` with the sense of travel known (``direction`` +1:
+        forward is increasing arc length, -1 decreasing; ``speed_mps`` is in the forward direction),
+        then the arc-length and speed 1-sigma set to ``sigma_s_m`` and ``sigma_v_mps`` (the caller
+        widens them for the time the state was not tracked) and the sensor error states restored:
+        ``errors`` maps names of :data:`sfa.layout.STATE_NAMES` other than ``s_m``/``v_mps`` to (value,
+        1-sigma); their cross-covariances start at zero. Returns the initialisation's Update
+        (``Outcome.INVALID`` and nothing changed on a bad value)."""
+        values = (t_s, arc_length_m, speed_mps, sigma_s_m, sigma_v_mps)
+        finite = all(isinstance(v, float | int) and math.isfinite(v) for v in values)
+        if direction not in (1, -1, 0) or not finite or sigma_s_m <= 0.0 or sigma_v_mps <= 0.0:
+            return Update("init", float(t_s) if isinstance(t_s, float | int) else math.nan, Outcome.INVALID)
+        slots: dict[int, tuple[float, float]] = {}
+        for name, pair in (errors or {}).items():
+            if name not in L.STATE_NAMES or name in ("s_m", "v_mps"):
+                return Update("init", float(t_s), Outcome.INVALID)
+            value, sigma = (float(p) for p in pair)
+            if not (math.isfinite(value) and math.isfinite(sigma) and sigma >= 0.0):
+                return Update("init", float(t_s), Outcome.INVALID)
+            slots[L.STATE_NAMES.index(name)] = (value, sigma)
+        upd = self._process_init(InitMeas(float(t_s), float(arc_length_m), float(speed_mps), line_id,
+                                          direction=int(direction) or None))
+        if upd.outcome != Outcome.INITIALISED:
+            return upd
+        for h in self._hyps:
+            for i, (value, sigma) in slots.items():
+                h.x[i] = value
+                h.P[i, :] = 0.0
+                h.P[:, i] = 0.0
+                h.P[i, i] = sigma * sigma
+            h.P[L.S, L.S] = float(sigma_s_m) ** 2
+            h.P[L.V, L.V] = float(sigma_v_mps) ** 2
+        return upd
+
     def state(self) -> tuple[np.ndarray, np.ndarray]:
         """Copies of the reported hypothesis's state vector and covariance (indices in sfa.layout)."""
         if not self._hyps:

@@ -371,6 +371,29 @@ def test_pipeline_takes_every_datagram_of_the_real_log(converted):
     assert np.isfinite(fig["along_track_residual_p95_m"])
 
 
+def test_the_listener_does_not_publish_the_estimates_that_leave_the_line(converted):
+    """With its plausibility stage (the listener's default) the estimates the filter's train tuning
+    puts off the car's line (docs/real-data.md, run A: p95 3 km) are not sent: every published arc
+    length lies within the line plus arc_margin_m, and the withheld ones are counted."""
+    from dataclasses import replace
+
+    from listener.config import ListenerConfig, PlausibilityConfig
+
+    meta = json.loads(converted.metadata.read_text())
+    cfg = ListenerConfig()
+    cfg = replace(cfg, merge=replace(cfg.merge, hold_s=meta["recommended_listener"]["merge.hold_s"]))
+    vetted = run_pipeline(converted.capture, converted.track, cfg, vet_outputs=True)
+    from track_db import TrackDatabase
+
+    length = TrackDatabase.open(converted.track).lines()[0].length_m
+    margin = PlausibilityConfig().arc_margin_m
+    arc = vetted["estimates"]["arc_length"]
+    assert arc.size > 0 and np.all((arc >= -margin) & (arc <= length + margin))
+    res = vetted["metrics"]["resilience"]
+    assert res["outputs_not_sent"]["arc_off_line"] > 1000
+    assert res["warnings"]["output_implausible"] == res["outputs_not_sent"]["arc_off_line"]
+
+
 def test_a_weak_latency_estimate_is_refused_unless_given(short_log, tmp_path):
     """The latency estimates are trusted only above min_latency_correlation (0.7 by default; the first
     60 s of the drive reach 0.79 for the speed, 0.997 for the position lead): below it the conversion

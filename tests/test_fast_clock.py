@@ -44,6 +44,12 @@ def _state(clock: StrobeClock) -> tuple:
         clock.unconfirmed,
         clock._candidate,
         clock.synced,
+        clock.rejected,
+        clock.trouble_at,
+        clock._cand_since,
+        clock._anchor_t,
+        clock._anchor_o,
+        repr(clock._anchor_r),  # NaN while settling (repr: NaN == NaN)
     )
 
 
@@ -86,3 +92,33 @@ def test_from_a_fresh_clock_and_nothing_to_do():
         )
     assert _state(fast) == _state(ref)
     assert fast.to_sensor_time(now[-1] + 0.5) == ref.to_sensor_time(now[-1] + 0.5)
+
+
+@pytest.mark.parametrize("shift", [100.0, -100.0, 0.3])
+def test_compiled_clock_equals_the_listener_clock_under_a_forged_stream(shift):
+    """A forger's STROBE stream beside the real one (2 Hz, shifted) and then a real clock step that
+    persists: the rejections, the trouble time, the candidate and its adoption agree bit for bit."""
+    rng = np.random.default_rng(4)
+    rows = []
+    for k in range(300):
+        now = 1000.0 + k + rng.uniform(0.0, 0.01)
+        real = 1.7e9 + (now - 1000.0) + (50.0 if k >= 200 else 0.0)  # a real step at k = 200
+        rows.append((real, now))
+        if 50 <= k < 120:
+            for half in (0.25, 0.75):
+                rows.append((1.7e9 + (now + half - 1000.0) + shift, now + half))
+    ts = np.array([r[0] for r in rows])
+    now = np.array([r[1] for r in rows])
+    ref, fast = StrobeClock(ClockConfig()), StrobeClock(ClockConfig())
+    for k in range(5):
+        ref.on_strobe(float(ts[k]), float(now[k]))
+        fast.on_strobe(float(ts[k]), float(now[k]))
+    params = replay_strobes(fast, ts[5:], now[5:])
+    expected = []
+    for k in range(5, ts.size):
+        ref.on_strobe(float(ts[k]), float(now[k]))
+        got = ref.to_sensor_time(float(now[k]) + 0.1)
+        expected.append(math.nan if got is None else got)
+    np.testing.assert_array_equal(sensor_now(params[1:], now[5:] + 0.1), np.array(expected))
+    assert _state(fast) == _state(ref)
+    assert ref.rejected >= 140 and ref.resets == 1  # every forged one rejected; the real step adopted

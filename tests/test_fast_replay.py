@@ -28,7 +28,14 @@ from listener.codec import (
     encode_input,
     input_layout,
 )
-from listener.config import FilterSelection, ListenerConfig, MergeConfig, VitalConfig, config_from_dict
+from listener.config import (
+    FilterSelection,
+    ListenerConfig,
+    MergeConfig,
+    PlausibilityConfig,
+    VitalConfig,
+    config_from_dict,
+)
 from tools.capture_reader import CaptureStats, read_capture
 from tools.fast_decode import decode_bytes
 from tools.fast_pcap import scan_capture
@@ -150,7 +157,10 @@ def test_reinitialisation_and_a_time_jump_go_through_trackfilter(sim, tmp_path):
     write_capture(cap, _resequence(out))
     # the filter alone (vital supervision off): with it, the 15 s silence latches the decay state
     # (LOST on the listener's timer), which the compiled path does not model: see the next test
-    opts = ReplayOptions(config=ListenerConfig(vital=VitalConfig(enabled=False)))
+    # and the GROUND TRUTH guard off: this second GROUND TRUTH (the first one's arc length again, 20 s
+    # later) disagrees with the NOMINAL filter, which the guard holds for confirmation (below)
+    opts = ReplayOptions(config=ListenerConfig(vital=VitalConfig(enabled=False),
+                                               plausibility=PlausibilityConfig(enabled=False)))
     exact = replay_capture(cap, sim["track"], opts)
     fast, info = try_fast_replay(cap, sim["track"], opts)
     assert info.used, info.reason
@@ -166,6 +176,14 @@ def test_reinitialisation_and_a_time_jump_go_through_trackfilter(sim, tmp_path):
     assert on.metrics["link"]["outputs"] < exact.metrics["link"]["outputs"]
     assert on.metrics["link"]["withheld"] > 0
     assert on.metrics["vital"]["decay"]["latched"]  # (this capture latches first on a long slip)
+    # with the GROUND TRUTH guard on (the default) the far second GROUND TRUTH is held, not applied:
+    # the exact replay runs (the compiled path does not model the guard)
+    guarded = ReplayOptions(config=ListenerConfig(vital=VitalConfig(enabled=False)))
+    fast_g, info_g = try_fast_replay(cap, sim["track"], guarded)
+    assert fast_g is None and "resilience" in info_g.reason
+    held = replay_capture(cap, sim["track"], guarded)
+    assert held.metrics["filter"]["counters"]["initialisations"] == 1
+    assert held.metrics["resilience"]["ground_truth"]["held"] == 1
 
 
 @pytest.mark.parametrize(("stype", "seconds"), [(3, 6.0), (1, 1.0)])

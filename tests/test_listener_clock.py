@@ -1,6 +1,9 @@
 """STROBE clock model: rejects positive delay jitter, follows skew, resets on steps."""
 
 import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from listener.clock import StrobeClock
 from listener.config import ClockConfig
@@ -42,16 +45,71 @@ def test_skew_is_followed():
     assert abs(clock.to_sensor_time(probe) - expected) < 1e-4
 
 
-def test_step_resets_the_model():
-    clock = StrobeClock(ClockConfig(max_step_s=1.0))
+def test_step_resets_the_model_once_it_persisted():
+    clock = StrobeClock(ClockConfig(max_step_s=1.0, confirm_s=5.0))
     for k in range(5):
         clock.on_strobe(500.0 + k, float(k))
     clock.on_strobe(9000.0, 5.0)  # sensor set restarted its clock ...
-    assert clock.resets == 0 and clock.unconfirmed == 1
+    assert clock.resets == 0 and clock.unconfirmed == 1 and clock.rejected == 1
     assert abs(clock.to_sensor_time(5.0) - 505.0) < 1e-9  # not believed from one STROBE
-    clock.on_strobe(9001.0, 6.0)  # ... and the next STROBE confirms it
+    for k in range(1, 5):  # ... agreeing STROBEs, none with the old model, but not yet for 5 s
+        clock.on_strobe(9000.0 + k, 5.0 + k)
+        assert clock.resets == 0
+    assert clock.rejected == 5 and clock.trouble_at == 9.0
+    clock.on_strobe(9005.0, 10.0)  # 5 s of it: adopted
+    assert clock.resets == 1 and clock.unconfirmed == 1
+    assert abs(clock.to_sensor_time(10.0) - 9005.0) < 1e-9
+
+
+def test_step_confirmed_by_the_next_strobe_without_persistence():
+    clock = StrobeClock(ClockConfig(max_step_s=1.0, confirm_s=0.0))
+    for k in range(5):
+        clock.on_strobe(500.0 + k, float(k))
+    clock.on_strobe(9000.0, 5.0)
+    assert clock.resets == 0 and clock.unconfirmed == 1
+    clock.on_strobe(9001.0, 6.0)
     assert clock.resets == 1
     assert abs(clock.to_sensor_time(6.0) - 9001.0) < 1e-9
+
+
+@pytest.mark.parametrize("shift", [100.0, -100.0, 0.5, 0.2])
+def test_a_forged_strobe_stream_beside_the_real_one_never_moves_the_timebase(shift):
+    """STROBE at 2 Hz shifted by ``shift`` from another sender, interleaved with the real 1 Hz stream
+    for 60 s: each real STROBE agrees with the model, so the forger's candidate never persists; every
+    forged one is rejected and counted."""
+    clock = StrobeClock(ClockConfig())
+    offset = 1.7e9
+    for k in range(20):
+        clock.on_strobe(offset + k, k + 0.001)
+    for k in range(20, 80):
+        clock.on_strobe(offset + k + 0.25 + shift, k + 0.25)  # the forger's: real time + shift
+        clock.on_strobe(offset + k, k + 0.001)
+        clock.on_strobe(offset + k + 0.75 + shift, k + 0.75)
+        probe = k + 0.9
+        assert abs(clock.to_sensor_time(probe) - (offset + probe - 0.001)) < 0.01
+    assert clock.resets == 0 and clock.rejected == 120 and clock.trouble_at == 79.75
+
+
+@given(st.floats(min_value=1e-5, max_value=0.5), st.integers(min_value=0, max_value=2**31))
+@settings(max_examples=40, deadline=None)
+def test_a_ramp_cannot_drag_the_timebase_beyond_the_drift_bound(step_s, seed):
+    """A forger beside the real 1 Hz stream moving its STROBEs ahead a little more each time (each
+    within the jitter allowance of the last, so that a plain envelope would follow it): the timebase
+    never runs ahead of the real one by more than drift x time + jitter. (A lone source that keeps
+    its new offset for confirm_s is adopted: that is a sensor-set clock reset.)"""
+    rng = np.random.default_rng(seed)
+    cfg = ClockConfig()
+    clock = StrobeClock(cfg)
+    for k in range(10):
+        clock.on_strobe(1000.0 + k, float(k))
+    ahead = 0.0
+    worst = 0.0
+    for k in range(10, 130):
+        ahead += step_s * rng.uniform(0.5, 1.0)
+        clock.on_strobe(1000.0 + k + 0.5 + ahead, k + 0.5)
+        clock.on_strobe(1000.0 + k + 1.0, k + 1.0)
+        worst = max(worst, clock.to_sensor_time(k + 1.0) - (1000.0 + k + 1.0))
+    assert worst <= cfg.max_drift * 130.0 + cfg.max_jitter_s + 1e-9
 
 
 def test_one_corrupted_strobe_does_not_move_the_timebase():
@@ -108,3 +166,35 @@ def test_accelerated_sensor_clock_with_lost_strobes():
         else:
             assert clock.resets == 0 and clock.unconfirmed == 0
             assert worst < 0.005
+
+
+def test_a_lone_source_off_the_configured_rate_is_judged_at_its_own_rate():
+    """The only STROBE source runs 10 % fast (a sender at 1.1x with clock.rate = 1): the rate it shows
+    while the model settles is the one the drift bound is judged at, so it is followed without a
+    rejection and nothing it dates looks like the future."""
+    clock = StrobeClock(ClockConfig())
+    worst = 0.0
+    for k in range(120):
+        now = float(k)
+        clock.on_strobe(1000.0 + 1.1 * now, now)
+        probe = now + 0.5
+        worst = max(worst, abs((1000.0 + 1.1 * probe) - clock.to_sensor_time(probe)))
+    assert clock.settled_rate == pytest.approx(1.1)
+    assert clock.rejected == 0 and clock.resets == 0
+    assert worst < 0.2, worst
+
+
+def test_an_accelerated_source_without_clock_rate_is_judged_at_its_own_rate():
+    """sfa sim --live --speed 8 with the listener at clock.rate = 1 (a misconfiguration the live tests
+    make): the rate shown while settling (8) is the one the drift bound uses, so the STROBEs are taken
+    and the timebase follows them, as the envelope did before the drift bound."""
+    clock = StrobeClock(ClockConfig())
+    worst = 0.0
+    for k in range(480):
+        now = k * 0.125 + 0.0002 * (k % 3)
+        clock.on_strobe(1.7e9 + k, now)
+        probe = now + 0.06
+        worst = max(worst, abs(clock.to_sensor_time(probe) - (1.7e9 + k + 0.48)))
+    assert clock.settled_rate == pytest.approx(8.0, rel=0.01)
+    assert clock.rejected == 0 and clock.resets == 0
+    assert worst < 1.0

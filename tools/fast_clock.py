@@ -35,7 +35,20 @@ C_CAND = 6  #: candidate offset (meaningful when C_HAS_CAND != 0)
 C_HAS_CAND = 7
 C_N = 8  #: samples in the window
 C_HEAD = 9  #: slot of the oldest sample in the mirrored sample buffers
-NSTATE = 10
+C_REJECTED = 10  #: StrobeClock.rejected
+C_TROUBLE = 11  #: StrobeClock.trouble_at (NaN: None)
+C_CAND_SINCE = 12
+C_ANCHOR_T = 13
+C_ANCHOR_O = 14
+C_ANCHOR_R = 15  #: StrobeClock._anchor_r (NaN while settling)
+NSTATE = 16
+# slots of the parameter array (ClockConfig)
+P_MAX_STEP = 0
+P_CONFIRM = 1
+P_DRIFT = 2
+P_JITTER = 3
+P_RATE = 4
+NPARAM = 5
 
 
 def clock_supported() -> bool:
@@ -95,26 +108,74 @@ def _fit(st, smp_t, smp_o, h0, n, hx, hy):
 
 
 @njit(cache=True, _nrt=False)
-def _on_strobe(ts, t, n, window, max_step, st, smp_t, smp_o, hx, hy):
+def _settle(st, smp_t, smp_o, h0, n, rate):
+    """StrobeClock._settle over the n samples smp_*[h0:h0 + n]."""
+    t0 = smp_t[h0]
+    o0 = smp_o[h0]
+    t1 = smp_t[h0 + n - 1]
+    o1 = smp_o[h0 + n - 1]
+    r = rate
+    if t1 > t0:
+        raw = 1.0 + (o1 - o0) / (t1 - t0)
+        if abs(raw - rate) > 0.02 * rate:
+            r = raw
+    st[C_ANCHOR_R] = r
+    ta = st[C_ANCHOR_T]
+    best = o0 - (r - 1.0) * (t0 - ta)
+    for i in range(1, n):
+        v = smp_o[h0 + i] - (r - 1.0) * (smp_t[h0 + i] - ta)
+        if v > best:
+            best = v
+    st[C_ANCHOR_O] = best
+
+
+@njit(cache=True, _nrt=False)
+def _on_strobe(ts, t, n, window, prm, st, smp_t, smp_o, hx, hy):
     """``StrobeClock.on_strobe(ts, t)`` on the state: st, and the n samples from slot st[C_HEAD] of the
     mirrored buffers smp_t, smp_o (2 * window: sample slot p is also kept at p + window, so the window
     is always one contiguous stretch and dropping the oldest moves nothing). Returns n."""
     if math.isfinite(ts) and math.isfinite(t):
         offset = ts - t
+        max_step = prm[P_MAX_STEP]
+        confirm = prm[P_CONFIRM]
+        rate = prm[P_RATE]
         accept = True
         if n > 0:
             predicted = st[C_INTERCEPT] + st[C_SLOPE] * (t - st[C_REF])
-            if abs(offset - predicted) > max_step:
-                if st[C_HAS_CAND] == 0.0 or abs(offset - st[C_CAND]) > max_step:
+            since = t - st[C_ANCHOR_T]
+            bad = abs(offset - predicted) > max_step
+            if not bad and since >= confirm:
+                if math.isnan(st[C_ANCHOR_R]):
+                    _settle(st, smp_t, smp_o, int(st[C_HEAD]), n, rate)
+                r = st[C_ANCHOR_R]
+                bad = offset > st[C_ANCHOR_O] + (r - 1.0 + prm[P_DRIFT] * r) * since + prm[P_JITTER]
+            if bad:
+                agree = False
+                if st[C_HAS_CAND] != 0.0:
+                    age = t - st[C_CAND_SINCE]
+                    rc = rate if math.isnan(st[C_ANCHOR_R]) else st[C_ANCHOR_R]
+                    agree = not abs(offset - (rc - 1.0) * age - st[C_CAND]) > max_step
+                if not agree:
                     st[C_CAND] = offset
                     st[C_HAS_CAND] = 1.0
+                    st[C_CAND_SINCE] = t
                     st[C_UNCONFIRMED] += 1.0
+                    st[C_REJECTED] += 1.0
+                    st[C_TROUBLE] = t
+                    accept = False
+                elif t - st[C_CAND_SINCE] < confirm:
+                    st[C_REJECTED] += 1.0
+                    st[C_TROUBLE] = t
                     accept = False
                 else:
                     n = 0
                     st[C_RESETS] += 1.0
         if accept:
             st[C_HAS_CAND] = 0.0
+            if n == 0:
+                st[C_ANCHOR_T] = t
+                st[C_ANCHOR_O] = offset
+                st[C_ANCHOR_R] = math.nan
             head = int(st[C_HEAD])
             if n == window:  # deque(maxlen=window).append drops the oldest
                 head += 1
@@ -136,7 +197,7 @@ def _on_strobe(ts, t, n, window, max_step, st, smp_t, smp_o, hx, hy):
 
 
 @njit(cache=True, _nrt=False)
-def run_strobes(timestamp, now, window, max_step, st, smp_t, smp_o, hx, hy, out):
+def run_strobes(timestamp, now, window, prm, st, smp_t, smp_o, hx, hy, out):
     """Apply STROBEs (sensor-set ``timestamp[k]`` received at ``now[k]``) to the clock state.
 
     ``st``: scalar state (slots C_*); ``smp_t``/``smp_o``: the window's samples, oldest first from slot
@@ -144,7 +205,7 @@ def run_strobes(timestamp, now, window, max_step, st, smp_t, smp_o, hx, hy, out)
     ``out[k]``: (synced, intercept, slope, ref) after STROBE k."""
     n = int(st[C_N])
     for k in range(timestamp.shape[0]):
-        n = _on_strobe(timestamp[k], now[k], n, window, max_step, st, smp_t, smp_o, hx, hy)
+        n = _on_strobe(timestamp[k], now[k], n, window, prm, st, smp_t, smp_o, hx, hy)
         out[k, 0] = 1.0 if n > 0 else 0.0
         out[k, 1] = st[C_INTERCEPT]
         out[k, 2] = st[C_SLOPE]
@@ -154,7 +215,7 @@ def run_strobes(timestamp, now, window, max_step, st, smp_t, smp_o, hx, hy, out)
 
 @njit(cache=True, _nrt=False)
 def run_clock(
-    s_row, s_ts, s_time, m_row, m_time, t_s, window, max_step, max_future, stale_before, st, smp_t, smp_o,
+    s_row, s_ts, s_time, m_row, m_time, t_s, window, prm, max_future, stale_before, st, smp_t, smp_o,
     hx, hy, fresh_min, future,
 ):  # fmt: skip
     """The STROBEs (datagram ``s_row``, timestamp ``s_ts``, arrival ``s_time``) and the measurements
@@ -172,7 +233,7 @@ def run_clock(
     for j in range(m_row.shape[0]):
         r = m_row[j]
         while si < n_s and s_row[si] < r:
-            n = _on_strobe(s_ts[si], s_time[si], n, window, max_step, st, smp_t, smp_o, hx, hy)
+            n = _on_strobe(s_ts[si], s_time[si], n, window, prm, st, smp_t, smp_o, hx, hy)
             si += 1
         now = m_time[j]
         if n > 0:
@@ -185,7 +246,7 @@ def run_clock(
             n_future += 1
         fresh_min[j] = sn - stale_before
     while si < n_s:
-        n = _on_strobe(s_ts[si], s_time[si], n, window, max_step, st, smp_t, smp_o, hx, hy)
+        n = _on_strobe(s_ts[si], s_time[si], n, window, prm, st, smp_t, smp_o, hx, hy)
         si += 1
     st[C_N] = n
     return n_future
@@ -205,6 +266,12 @@ def _state_of(clock):
     if clock._candidate is not None:
         st[C_CAND] = clock._candidate
         st[C_HAS_CAND] = 1.0
+    st[C_REJECTED] = clock.rejected
+    st[C_TROUBLE] = math.nan if clock.trouble_at is None else clock.trouble_at
+    st[C_CAND_SINCE] = clock._cand_since
+    st[C_ANCHOR_T] = clock._anchor_t
+    st[C_ANCHOR_O] = clock._anchor_o
+    st[C_ANCHOR_R] = clock._anchor_r
     st[C_N] = len(samples)
     st[C_HEAD] = 0
     size = max(window, 1)
@@ -229,6 +296,24 @@ def _set_state(clock, window, st, smp_t, smp_o) -> None:
     clock.strobes = int(st[C_STROBES])
     clock.unconfirmed = int(st[C_UNCONFIRMED])
     clock._candidate = float(st[C_CAND]) if st[C_HAS_CAND] != 0.0 else None
+    clock.rejected = int(st[C_REJECTED])
+    clock.trouble_at = None if math.isnan(st[C_TROUBLE]) else float(st[C_TROUBLE])
+    clock._cand_since = float(st[C_CAND_SINCE])
+    clock._anchor_t = float(st[C_ANCHOR_T])
+    clock._anchor_o = float(st[C_ANCHOR_O])
+    clock._anchor_r = float(st[C_ANCHOR_R])
+
+
+def _params(clock) -> np.ndarray:
+    """The clock's configuration as the compiled code reads it (slots P_*)."""
+    c = clock._cfg
+    prm = np.zeros(NPARAM)
+    prm[P_MAX_STEP] = c.max_step_s
+    prm[P_CONFIRM] = c.confirm_s
+    prm[P_DRIFT] = c.max_drift
+    prm[P_JITTER] = c.max_jitter_s
+    prm[P_RATE] = c.rate
+    return prm
 
 
 def replay_strobes(clock, timestamp: np.ndarray, now: np.ndarray) -> np.ndarray:
@@ -243,7 +328,7 @@ def replay_strobes(clock, timestamp: np.ndarray, now: np.ndarray) -> np.ndarray:
         np.ascontiguousarray(timestamp, dtype=np.float64),
         np.ascontiguousarray(now, dtype=np.float64),
         window,
-        float(clock._cfg.max_step_s),
+        _params(clock),
         st,
         smp_t,
         smp_o,
@@ -266,7 +351,7 @@ def replay_clock(clock, strobes, meas, max_future: float, stale_before: float):
     fresh_min = np.empty(m_row.shape[0])
     future = np.empty(m_row.shape[0], dtype=np.bool_)
     n_future = run_clock(
-        *strobes, *meas, window, float(clock._cfg.max_step_s), float(max_future), float(stale_before),
+        *strobes, *meas, window, _params(clock), float(max_future), float(stale_before),
         st, smp_t, smp_o, hx, hy, fresh_min, future,
     )  # fmt: skip
     _set_state(clock, window, st, smp_t, smp_o)

@@ -122,9 +122,47 @@ def try_fast_replay(capture_path, track, options=None):
     result, info = _replay_ingested(got, track, options, ingest_s)
     if result is not None:
         why = vital_reason(got, result, options, result.metrics["fast_replay"].pop("reason_bits"))
+        why = why or resilience_reason(result, track, options)
         if why:
             return None, _info(False, why, info.exact_prefix)
     return result, info
+
+
+def resilience_reason(result, track, options) -> str:
+    """Why the listener's resilience stage (listener.resilience: GROUND TRUTH guard, output guard, clock
+    trouble) could have changed what was sent, in which case the exact replay is needed; "" when not.
+
+    The compiled path models none of it, so it is used only when: no STROBE was rejected (the clock
+    trouble status), no re-initialisation happened after the first (the GROUND TRUTH guard may hold
+    a GROUND TRUTH against a NOMINAL filter), and the output guard passes every new output."""
+    cfg = options.config
+    if result.metrics["clock"].get("rejected_strobes", 0):
+        return "resilience: STROBEs rejected (clock_untrusted status, exact replay)"
+    if not cfg.plausibility.enabled:
+        return ""
+    if result.metrics["filter"]["counters"].get("initialisations", 0) > 1:
+        return "resilience: a re-initialisation (the GROUND TRUTH guard runs in the exact replay)"
+    from listener.plausibility import OutputGuard, line_limits
+
+    guard = OutputGuard(line_limits(track, cfg.plausibility.max_speed_mps), cfg.plausibility)
+    est = result.new_estimates()
+    for row in zip(est["epoch"].tolist(), est["arc_length"].tolist(), est["line_id"].tolist(),
+                   est["sigma"].tolist(), strict=True):
+        e = _Vetted(*row)
+        if guard.check(e) is not None:
+            return "resilience: an output the plausibility guard would not send"
+        guard.sent(e)
+    return ""
+
+
+@dataclass(frozen=True, slots=True)
+class _Vetted:
+    """The fields of an estimate the output guard reads."""
+
+    epoch_s: float
+    arc_length_m: float
+    line_id: int | None
+    sigma_s_m: float
 
 
 _SLACK_S = 0.01  #: vital_reason errs this much towards the exact replay (the timer's margin is 1 ms) [s]

@@ -33,13 +33,15 @@ UPDATE_FIELDS = ("epoch", "kind", "outcome", "nis", "arc_length", "speed", "sigm
 def run_pipeline(capture: str | Path, track_path: str | Path, config=None, port: int | None = None,
                  filter_config=None, exclude_ports: frozenset[int] = frozenset(),
                  gps_gap: tuple[float, float] | None = None,
-                 gap_ports: frozenset[int] | None = None) -> dict:
+                 gap_ports: frozenset[int] | None = None, vet_outputs: bool = False) -> dict:
     """Estimates (columns of ``ESTIMATE_FIELDS``) and the pipeline's metrics for one capture.
 
     ``exclude_ports``: source ports whose datagrams are not replayed (e.g. a sensor left out).
     ``gps_gap``: (start, end) epochs [s]: GNSS fixes dated in [start, end) are not replayed (an outage);
     the result's ``gps_withheld`` counts them. ``gap_ports``: the source ports the gap applies to (None:
-    the GNSS module's; add the odometer's when its speed comes from the same receiver, as in Dresden)."""
+    the GNSS module's; add the odometer's when its speed comes from the same receiver, as in Dresden).
+    ``vet_outputs``: keep the listener's plausibility stage (off by default here: this measures the
+    filter, and the stage withholds exactly the estimates that are far off, e.g. off the line)."""
     from listener.codec import GpsFix, OdometerSample, decode_input, decode_output_extended, encode_ack
     from listener.config import ListenerConfig
     from listener.pipeline import Pipeline
@@ -49,6 +51,8 @@ def run_pipeline(capture: str | Path, track_path: str | Path, config=None, port:
 
     cfg = config or ListenerConfig()
     cfg = replace(cfg, link=replace(cfg.link, extended=True))
+    if not vet_outputs:
+        cfg = replace(cfg, plausibility=replace(cfg.plausibility, enabled=False))
     track = TrackDatabase.open(track_path)
     filt = None
     if filter_config is not None:
