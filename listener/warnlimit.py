@@ -49,8 +49,6 @@ class WarningLimiter:
             return None
         self._last[key] = now
         self.emitted += 1
-        ev: dict[str, Any] = {"event": kind, "at": now, "level": "warning", **fields}
+        # suppressed: how many of this kind were held back since the previous one went out (0: none)
         held = self._suppressed.pop(key, 0)
-        if held:
-            ev["suppressed"] = held
-        return ev
+        return {"event": kind, "at": now, "level": "warning", **fields, "suppressed": held}

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from test_listener_pipeline import _datagrams, _feed, _pipeline, run, track  # noqa: F401 - fixtures
+from test_listener_pipeline import _datagrams, _feed, _pipeline, run  # noqa: F401 - fixtures
 
 from listener.auth import EpochCounter, derive_link_key, input_seq, output_seq, unwrap, wrap
 from listener.auth_link import LINK_ACK, LINK_OUTPUT, input_key

@@ -20,14 +20,7 @@ from listener.pipeline import Pipeline
 from sfa.filter import TrackFilter
 from sfa.layout import FilterStatus, Outcome
 from sfa.measurements import InitMeas
-from sfa.synthetic import build_track_db, generate
-from track_db import TrackDatabase
-
-
-@pytest.fixture(scope="module")
-def track(tmp_path_factory):
-    path = build_track_db(tmp_path_factory.mktemp("trk") / "synthetic.db")
-    return TrackDatabase.open(path)
+from sfa.synthetic import generate
 
 
 @pytest.fixture(scope="module")
@@ -36,6 +29,8 @@ def run(track):
                     GPS_PRESETS["standalone"], seed=21)
 
 
+#: a sender table's snapshot as the checkpoint carries it (listener.senders.SenderTable.snapshot)
+_SENDERS = {"version": 1, "mode": "tofu", "bindings": {"imu": "127.0.0.1:47001"}}
 _STATE = {"t_s": 1020.0, "line_id": 1, "s_m": 150.0, "v_mps": 10.0, "direction": 1, "sigma_s_m": 0.5,
           "sigma_v_mps": 0.05, "errors": {"odo_scale": [0.01, 0.002]}, "status": 1}
 
@@ -47,7 +42,7 @@ def _body(track, **over):
         "filter": dict(_STATE),
         "link": {"next_seq": 65000},
         "auth": None,
-        "extra": {"senders": {"x": 1}},
+        "extra": {"senders": _SENDERS},
     }
     body.update(over)
     return body
@@ -99,7 +94,7 @@ def test_assess_ages_by_monotonic_time_within_one_boot(track):
     assert plan.elapsed_s == pytest.approx(3.0)  # the (wrong) wall clock was not used
     assert plan.next_seq == (65000 + 4096) & 0xFFFF  # wraps, and is "newer" in serial arithmetic
     assert 0 < (plan.next_seq - 65000) & 0xFFFF < 32768
-    assert plan.extra == {"senders": {"x": 1}}
+    assert plan.extra == {"senders": _SENDERS}
     other_boot = ck.assess(_body(track), track_fp=fp, wall_now=1.7e9 + 4.0, mono_now=5.0, boot_id="b2",
                            config=cfg)
     assert other_boot.elapsed_s == pytest.approx(4.0)
@@ -325,3 +320,23 @@ def test_checkpoint_path_and_atomic_write(tmp_path):
         write_atomic(target, ck.encode({"k": k}))
         assert ck.decode(target.read_bytes()) == {"k": k}
     assert sorted(p.name for p in tmp_path.iterdir()) == ["c.json"]  # no temporary file left behind
+
+
+def test_the_sender_bindings_survive_a_restart_and_a_malformed_table_refuses_the_checkpoint(track):
+    """Trust on first use: the bindings learned before the crash are the restarted listener's, and a
+    checkpoint whose sender table is malformed is refused (corrupt) rather than half restored."""
+    a = Pipeline(track, ListenerConfig())
+    a.senders.restore(_SENDERS)
+    saved = a.checkpoint_extra["senders"][0]()
+    assert saved["bindings"] == {"imu": "127.0.0.1:47001"}
+    b = Pipeline(track, ListenerConfig())
+    good = ck.assess(_body(track), track_fp=ck.track_fingerprint(track), wall_now=0.0, mono_now=101.0,
+                     boot_id="b1")
+    b.resilience.resume(good, 0.0)
+    assert b.senders.snapshot()["bindings"] == {"imu": "127.0.0.1:47001"}
+    bad = _body(track)
+    bad["extra"] = {"senders": {"version": 99}}
+    c = Pipeline(track, ListenerConfig())
+    plan = ck.assess(bad, track_fp=ck.track_fingerprint(track), wall_now=0.0, mono_now=101.0, boot_id="b1")
+    with pytest.raises(ck.CheckpointError, match="senders"):
+        c.resilience.resume(plan, 0.0)

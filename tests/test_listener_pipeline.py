@@ -23,16 +23,10 @@ from listener.codec import (
 from listener.config import LinkConfig, ListenerConfig, config_from_dict
 from listener.pipeline import Pipeline
 from sfa.measurements import GpsMeas, ImuMeas, InitMeas, OdoMeas
-from sfa.synthetic import build_track_db, generate
-from track_db import TrackDatabase
+from sfa.synthetic import generate
 
 PORTS = {"imu": 47001, "odo": 47002, "gps": 47003, "ctl": 47000}
 
-
-@pytest.fixture(scope="module")
-def track(tmp_path_factory):
-    path = build_track_db(tmp_path_factory.mktemp("trk") / "synthetic.db")
-    return TrackDatabase.open(path)
 
 
 @pytest.fixture(scope="module")

@@ -27,18 +27,12 @@ from listener.warnlimit import WarningLimiter
 from sfa.filter import Estimate
 from sfa.layout import FilterStatus
 from sfa.measurements import InitMeas
-from sfa.synthetic import build_track_db, generate
-from track_db import TrackDatabase
+from sfa.synthetic import generate
 
 #: the forgeries leave from the control module's own address (spoofed, as the raw-socket attack of
 #: issue 20): what is tested here is the plausibility and clock stage, not the sender table in front
 CTL = ("127.0.0.1", PORTS["ctl"])
 
-
-@pytest.fixture(scope="module")
-def track(tmp_path_factory):
-    path = build_track_db(tmp_path_factory.mktemp("trk") / "synthetic.db")
-    return TrackDatabase.open(path)
 
 
 @pytest.fixture(scope="module")

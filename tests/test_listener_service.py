@@ -19,6 +19,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from helpers_net import free_port
 from test_listener_pipeline import _datagrams
 
 from interface_modules.presets import GPS_PRESETS, IMU_PRESETS, ODOMETER_PRESETS
@@ -27,11 +28,6 @@ from track_db import TrackDatabase
 
 pytestmark = pytest.mark.slow
 
-
-def _free_port() -> int:
-    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
 
 
 @pytest.fixture(scope="module")
@@ -92,7 +88,7 @@ class Notify:
 
 
 def _start(world, tmp_path, *extra, obcu_args=(), notify: Notify | None = None, watchdog_usec=None):
-    lport, oport = _free_port(), _free_port()
+    lport, oport = free_port(), free_port()
     obcu_csv = tmp_path / "obcu.csv"
     obcu = subprocess.Popen(
         [

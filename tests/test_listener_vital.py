@@ -13,17 +13,11 @@ from listener.errors import ConfigError
 from listener.pipeline import Pipeline
 from listener.vital import DecaySupervisor, ModuleHealth
 from sfa.measurements import InitMeas
-from sfa.synthetic import Profile, build_track_db, generate
-from track_db import TrackDatabase
+from sfa.synthetic import Profile, generate
 
 IMU, ODO, GPS, CTL = 1, 2, 3, 8  # first payload byte (SENSOR_TYPE)
 T0 = 1000.0  # the synthetic runs' first epoch
 
-
-@pytest.fixture(scope="module")
-def track(tmp_path_factory):
-    path = build_track_db(tmp_path_factory.mktemp("vital") / "synthetic.db")
-    return TrackDatabase.open(path)
 
 
 def _run(track, duration, profile=None, faults=None, seed=5):

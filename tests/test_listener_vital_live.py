@@ -22,6 +22,7 @@ import time
 import urllib.request
 
 import pytest
+from helpers_net import free_port
 from prometheus_client.parser import text_string_to_metric_families
 
 from listener.config import InputConfig, LinkConfig, ListenerConfig, MetricsConfig
@@ -58,11 +59,6 @@ def test_silent_sensor_reported_and_seen_by_the_obcu_in_time(live, kind):
 
 
 # ------------------------------------------------------------------ in-process service: HTTP, journald
-def _free_port(kind=socket.SOCK_DGRAM) -> int:
-    with socket.socket(socket.AF_INET, kind) as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
-
 
 def test_prometheus_endpoint_over_http(tmp_path):
     """The real service in-process (its own event loop thread) with [metrics] port: scraped over HTTP on
@@ -77,7 +73,7 @@ def test_prometheus_endpoint_over_http(tmp_path):
     run = generate(track, 1, 12.0, IMU_PRESETS["mems-train"], ODOMETER_PRESETS["wheel-odometer"],
                    GPS_PRESETS["standalone"], seed=2)
     dgrams = [d for d in _datagrams(run, start_seq=0) if d[2][0] != 10]  # no STOP: it keeps running
-    lport, oport, mport = _free_port(), _free_port(), _free_port(socket.SOCK_STREAM)
+    lport, oport, mport = free_port(), free_port(), free_port(socket.SOCK_STREAM)
     cfg = ListenerConfig(
         input=InputConfig(bind="127.0.0.1", port=lport),
         link=LinkConfig(obcu_host="127.0.0.1", obcu_port=oport),
@@ -209,7 +205,7 @@ def test_metrics_port_in_use_fails_at_start_with_one_line(tmp_path):
         busy.listen(1)
         port = busy.getsockname()[1]
         res = subprocess.run(
-            [sys.executable, "-m", "sfa", "listen", "--bind", "127.0.0.1", "--port", str(_free_port()),
+            [sys.executable, "-m", "sfa", "listen", "--bind", "127.0.0.1", "--port", str(free_port()),
              "--no-warm-up", "--set", f"metrics.port={port}"],
             capture_output=True, text=True, timeout=120,
         )
@@ -230,8 +226,8 @@ def test_sfa_listen_prefixes_priorities_when_stderr_is_the_journal(tmp_path):
         st = os.fstat(fh.fileno())
         env = {**os.environ, "JOURNAL_STREAM": f"{st.st_dev}:{st.st_ino}"}
         proc = subprocess.Popen(
-            [sys.executable, "-m", "sfa", "listen", "--bind", "127.0.0.1", "--port", str(_free_port()),
-             "--obcu", f"127.0.0.1:{_free_port()}", "--no-warm-up"],
+            [sys.executable, "-m", "sfa", "listen", "--bind", "127.0.0.1", "--port", str(free_port()),
+             "--obcu", f"127.0.0.1:{free_port()}", "--no-warm-up"],
             stderr=fh, stdout=subprocess.DEVNULL, env=env,
         )
         try:

@@ -7,7 +7,7 @@ import json
 import math
 
 import pytest
-from test_listener_pipeline import PORTS, _datagrams, _feed, run, track  # noqa: F401 - fixtures
+from test_listener_pipeline import PORTS, _datagrams, _feed, run  # noqa: F401 - fixtures
 
 from listener.auth import EpochCounter, input_seq, wrap
 from listener.auth_link import input_key
