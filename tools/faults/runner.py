@@ -17,7 +17,7 @@ from typing import Any
 import numpy as np
 
 from tools.faults.errors import CampaignError, ModeUnsupported
-from tools.faults.evaluate import Observation, evaluate, pool
+from tools.faults.evaluate import Observation, evaluate_pooled
 from tools.faults.spec import ScenarioSpec
 
 
@@ -142,16 +142,13 @@ def run_scenario(spec: ScenarioSpec, mode: str, out_dir: str) -> dict[str, Any]:
             run = run_live
         else:
             raise CampaignError(f"unknown mode {mode!r} (replay or live)")
-        if spec.seeds == 1:
-            obs = run(spec, out)
-        else:  # independent repetitions, pooled: each keeps its own directory
-            runs = []
-            for k in range(spec.seeds):
-                (out / f"seed{k}").mkdir(exist_ok=True)
-                runs.append(run(spec.repetition(k), out / f"seed{k}"))
-            obs = pool(runs)
-        obs.wall_s = time.perf_counter() - t0
-        row = evaluate(obs, spec.expect)
+        runs = []  # independent repetitions (seeds > 1: each in its own directory), pooled
+        for k in range(spec.seeds):
+            where = out if spec.seeds == 1 else out / f"seed{k}"
+            where.mkdir(exist_ok=True)
+            runs.append(run(spec.repetition(k), where))
+            runs[-1].wall_s = time.perf_counter() - t0 - sum(r.wall_s for r in runs[:-1])
+        row = evaluate_pooled(runs, spec.expect)
     except ModeUnsupported as exc:
         row = {"scenario": spec.name, "mode": mode, "verdict": "SKIP", "notes": str(exc),
                "wall_s": round(time.perf_counter() - t0, 1)}
