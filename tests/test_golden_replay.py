@@ -1,0 +1,89 @@
+"""Golden hashes of today's exact-replay outputs (issue 17: pinned before the engine moves).
+
+Four captures from shipped scenarios (the simulator is seeded, so each capture is the same bytes on
+every machine): the Jena tram with epochs; the same with its measurements STROBE-dated (no epoch, the
+thesis's form) and 1 % loss, 1 % duplicates and 1 % adjacent swaps; the E1 regional line; the tram
+with its scripted sensor faults. Each is replayed by the exact path with the listener's defaults and
+the scenario's presets. A test fails with the capture's hash when the simulator changed (not the
+replay), with the outputs' hash when the replay did: a change of either must be explained in the
+commit that updates the pinned value.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import hashlib
+
+import numpy as np
+import pytest
+
+from interface_modules.offline import generate
+from interface_modules.scenario import load_scenario
+from interface_modules.tracks import database_path
+from listener.config import FilterSelection, ListenerConfig
+from tools.replay import ReplayOptions, replay_datagrams
+from track_db import TrackDatabase
+
+#: capture name -> (sha256 of the capture's datagrams, sha256 of the replay's new estimates)
+GOLDEN = {
+    "tram-urban": ("94daa3dd52292420720ea47f56af27d0a522466474b6e62f7c0b979ffcf10bca",
+        "f91b5378c695ad5157196f5490c22032fe4d54278b7fb85fa2d0367be0bce0f7"),
+    "tram-urban-strobe-lossy": ("d7386252a1ea31f0afd7dc27aaef8fd0eed094bc803b8f1f17f2e5032338010b",
+        "3ffa13d946ebcbe2149d7e58a60c3f90a3ade030a2ef9f2077186cb981c4d6c6"),
+    "regional-tunnel": ("e957054e136afb91c458f1b15628421ca1e878d20c655fa35ebb4d2927ae524d",
+        "b87e64f18c803fb6a32a40f846584d31d232a9959d913b9aee932f2125e3fa3a"),
+    "tram-faults": ("ebf37f6b34ba02c19339c24c6dd13780e1bebe56d6dcb31a3c99169d3743e37e",
+        "cae1c44aa9526a8a16ea86041197546039e5073cff697276089d5bb35d0de10d"),
+}
+
+
+def _capture(name: str) -> tuple[object, list[tuple[float, tuple[str, int], bytes]]]:
+    scenario = "tram-urban" if name.startswith("tram-urban") else name
+    sc = dataclasses.replace(load_scenario(scenario), max_duration_s=60.0)
+    if name == "tram-urban-strobe-lossy":
+        sc = sc.with_overrides(**{m: dataclasses.replace(getattr(sc, m), send_epoch=False)
+                                  for m in ("imu", "odometer", "gps")})
+    sim = generate(sc)
+    dgrams = [(float(p.arrival_s), ("127.0.0.1", int(p.src_port)), bytes(p.payload)) for p in sim.packets]
+    if name == "tram-urban-strobe-lossy":
+        rng = np.random.default_rng(17)
+        out: list = []
+        for d in dgrams:
+            u = rng.random()
+            if u < 0.01:
+                continue  # lost
+            out.append(d)
+            if u < 0.02:
+                out.append(d)  # duplicated
+            elif u < 0.03 and len(out) >= 2:
+                out[-1], out[-2] = out[-2], out[-1]  # overtaken by its successor
+        dgrams = [(t, src, p) for (_, src, p), t in zip(out, sorted(d[0] for d in out), strict=True)]
+    return sc, dgrams
+
+
+def _hash_capture(dgrams) -> str:
+    h = hashlib.sha256()
+    for t, src, p in dgrams:
+        h.update(np.float64(t).tobytes() + src[1].to_bytes(2, "little") + len(p).to_bytes(2, "little") + p)
+    return h.hexdigest()
+
+
+def _hash_estimates(result) -> str:
+    est = result.new_estimates()
+    h = hashlib.sha256()
+    for k in sorted(est):
+        h.update(k.encode() + np.ascontiguousarray(est[k]).tobytes())
+    return h.hexdigest()
+
+
+@pytest.mark.parametrize("name", sorted(GOLDEN))
+def test_exact_replay_outputs_match_their_golden_hash(name):
+    sc, dgrams = _capture(name)
+    sel = FilterSelection(imu=sc.imu.preset, odometer=sc.odometer.preset, gps=sc.gps.preset)
+    with TrackDatabase.open(database_path(sc)) as track:
+        result = replay_datagrams(iter(dgrams), track, ReplayOptions(config=ListenerConfig(filter=sel)))
+    got = (_hash_capture(dgrams), _hash_estimates(result))
+    assert result.new_estimates()["epoch"].size > 1000
+    want = GOLDEN[name]
+    assert got[0] == want[0], f"{name}: the capture changed (the simulator): {got[0]}"
+    assert got[1] == want[1], f"{name}: the replay's outputs changed: {got[1]}"
