@@ -20,7 +20,7 @@ SPEED = 4.0  #: the 40 s run is sent in 10 s
 
 def _send(lport: int, dgrams, speed: float, inject=None) -> dict:
     """Send ``dgrams`` paced at ``speed`` x real time, one socket per module (port of the run's address);
-    ``inject(i, socks, attacker)`` runs before datagram i and may send forgeries. Returns the sockets'
+    ``inject(i, socks, attacker, lport, dgrams)`` runs before datagram i and may send forgeries. Returns the sockets'
     ports by module port."""
     socks: dict[int, socket.socket] = {}
     attacker = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
@@ -37,7 +37,7 @@ def _send(lport: int, dgrams, speed: float, inject=None) -> dict:
                 s = socks[addr[1]] = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
                 s.bind(("127.0.0.1", 0))
             if inject is not None:
-                inject(i, socks, attacker)
+                inject(i, socks, attacker, lport, dgrams)
             s.sendto(data, ("127.0.0.1", lport))
         return {p: s.getsockname()[1] for p, s in socks.items()}
     finally:
@@ -45,22 +45,9 @@ def _send(lport: int, dgrams, speed: float, inject=None) -> dict:
             s.close()
 
 
-def test_forged_ground_truth_and_stop_from_new_ports_change_nothing(world, tmp_path):  # noqa: F811
-    """One GROUND TRUTH (arc 2000 m) and then one STOP from the attacker's own port while the control
-    module is bound: both rejected, counted, warned about; the service goes on and stops only at the
-    control module's STOP."""
-    n_gt = n_stop = None
-
-    def inject(i, socks, attacker):
-        nonlocal n_gt, n_stop
-        if i == 1500:
-            n_gt = i
-            forged = GroundTruth(0, 10.0, 0.0, 0.0, 2000.0, None, None)
-            attacker.sendto(encode_input(forged), ("127.0.0.1", lport))
-        if i == 2500:
-            n_stop = i
-            attacker.sendto(encode_input(Stop(1)), ("127.0.0.1", lport))
-
+def _run_attack(world, tmp_path, inject) -> tuple[int, object]:  # noqa: F811 - not the fixture
+    """A live listener and OBCU, the world's run sent at SPEED with ``inject(i, socks, attacker, lport,
+    dgrams)`` called before datagram i; returns the listener's exit status and the OBCU's CSV."""
     from test_listener_pipeline import _datagrams
 
     listener, obcu, lport, obcu_csv = _start(world, tmp_path)
@@ -74,6 +61,26 @@ def test_forged_ground_truth_and_stop_from_new_ports_change_nothing(world, tmp_p
             listener.kill()
         obcu.terminate()
         obcu.wait(timeout=10)
+    return rc, obcu_csv
+
+
+def test_forged_ground_truth_and_stop_from_new_ports_change_nothing(world, tmp_path):  # noqa: F811
+    """One GROUND TRUTH (arc 2000 m) and then one STOP from the attacker's own port while the control
+    module is bound: both rejected, counted, warned about; the service goes on and stops only at the
+    control module's STOP."""
+    n_gt = n_stop = None
+
+    def inject(i, socks, attacker, lport, dgrams):
+        nonlocal n_gt, n_stop
+        if i == 1500:
+            n_gt = i
+            forged = GroundTruth(0, 10.0, 0.0, 0.0, 2000.0, None, None)
+            attacker.sendto(encode_input(forged), ("127.0.0.1", lport))
+        if i == 2500:
+            n_stop = i
+            attacker.sendto(encode_input(Stop(1)), ("127.0.0.1", lport))
+
+    rc, obcu_csv = _run_attack(world, tmp_path, inject)
     events = _events(tmp_path / "listener.log")
     assert rc == 0 and n_gt is not None and n_stop is not None
     exit_ev = next(e for e in events if e["event"] == "exit")
@@ -97,7 +104,7 @@ def test_a_forged_seq_jump_does_not_silence_the_imu(world, tmp_path):  # noqa: F
     and after it stay the same (before: the IMU was treated as "late" for the next 100 numbers)."""
     forged_at = {}
 
-    def inject(i, socks, attacker):
+    def inject(i, socks, attacker, lport, dgrams):
         if i == 2000 and 47001 in socks:
             last = max(k for k in range(i) if dgrams[k][1][1] == 47001)
             msg = decode_input(dgrams[last][2])
@@ -105,19 +112,7 @@ def test_a_forged_seq_jump_does_not_silence_the_imu(world, tmp_path):  # noqa: F
             socks[47001].sendto(encode_input(forged), ("127.0.0.1", lport))
             forged_at["epoch"] = msg.epoch
 
-    from test_listener_pipeline import _datagrams
-
-    listener, obcu, lport, obcu_csv = _start(world, tmp_path)
-    dgrams = _datagrams(world["run"])
-    try:
-        _send(lport, dgrams, SPEED, inject)
-        rc = listener.wait(timeout=60)
-        _wait_quiet(obcu_csv)
-    finally:
-        if listener.poll() is None:
-            listener.kill()
-        obcu.terminate()
-        obcu.wait(timeout=10)
+    rc, obcu_csv = _run_attack(world, tmp_path, inject)
     assert rc == 0 and "epoch" in forged_at
     events = _events(tmp_path / "listener.log")
     exit_ev = next(e for e in events if e["event"] == "exit")
