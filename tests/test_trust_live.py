@@ -20,8 +20,8 @@ SPEED = 4.0  #: the 40 s run is sent in 10 s
 
 def _send(lport: int, dgrams, speed: float, inject=None) -> dict:
     """Send ``dgrams`` paced at ``speed`` x real time, one socket per module (port of the run's address);
-    ``inject(i, socks, attacker, lport, dgrams)`` runs before datagram i and may send forgeries. Returns the sockets'
-    ports by module port."""
+    ``inject(i, socks, attacker, lport, dgrams)`` runs before datagram i and may send forgeries.
+    Returns the sockets' ports by module port."""
     socks: dict[int, socket.socket] = {}
     attacker = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
     attacker.bind(("127.0.0.1", 0))
