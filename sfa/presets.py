@@ -268,7 +268,8 @@ def filter_config_for(
         # anywhere inside its 4 m cell, an onset uncertain by sigma = step / sqrt(12) (uniform). Without
         # it the gyro's map matching pinned the odometer scale 3 sigma off (trust campaign seed 9:
         # NEES 2.57 -> 0.99 with it). A stop-gap: it makes the 300-s Monte Carlo over-conservative
-        # (docs/filter.md, "Found in session 8, covered by a stop-gap"); the overconfidence is in the first convergence
+        # (docs/filter.md, "Found in session 8, covered by a stop-gap"); the overconfidence is in the
+        # first convergence
         curvature_registration_m=PROFILE_STEP_M / math.sqrt(12.0),
         track_lateral_sigma_m=min(0.3, 3.0 * gps_spec.white_sigma_m),
     )
