@@ -19,7 +19,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from helpers_net import free_port
+from helpers_net import free_port, paced_send
 from test_listener_pipeline import _datagrams
 
 from interface_modules.presets import GPS_PRESETS, IMU_PRESETS, ODOMETER_PRESETS
@@ -147,28 +147,19 @@ def _start(world, tmp_path, *extra, obcu_args=(), notify: Notify | None = None, 
 
 
 def _send(lport: int, dgrams, speed: float, hostile_every: int = 0) -> tuple[int, int]:
-    """Send the datagrams paced at ``speed`` x real time from one socket per module; returns counts."""
-    socks = {}
-    sent = junk = 0
-    t0 = dgrams[0][0]
-    start = time.monotonic()
-    for i, (t, addr, data) in enumerate(dgrams):
-        delay = (t - t0) / speed - (time.monotonic() - start)
-        if delay > 0:
-            time.sleep(delay)
-        s = socks.get(addr[1])
-        if s is None:
-            s = socks[addr[1]] = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
-            s.bind(("127.0.0.1", 0))
+    """Send the datagrams paced at ``speed`` x real time from one socket per module
+    (helpers_net.paced_send), with three invalid datagrams before every ``hostile_every``-th; returns
+    the counts (valid, invalid)."""
+    junk = [0]
+
+    def hostile(i, s, _socks) -> None:
         if hostile_every and i % hostile_every == 0:
             for bad in (b"\x01\x00", b"\x63\x00\x00\x00\x00", b"\x02\x01\x00\x00\x02" + b"\xff" * 16):
                 s.sendto(bad, ("127.0.0.1", lport))
-                junk += 1
-        s.sendto(data, ("127.0.0.1", lport))
-        sent += 1
-    for s in socks.values():
-        s.close()
-    return sent, junk
+                junk[0] += 1
+
+    paced_send(lport, dgrams, speed, hostile)
+    return len(dgrams), junk[0]
 
 
 def _wait_quiet(csv_path: Path, quiet_s: float = 1.0, timeout_s: float = 20.0) -> None:

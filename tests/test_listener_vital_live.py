@@ -22,7 +22,7 @@ import time
 import urllib.request
 
 import pytest
-from helpers_net import free_port
+from helpers_net import free_port, paced_send
 from prometheus_client.parser import text_string_to_metric_families
 
 from listener.config import InputConfig, LinkConfig, ListenerConfig, MetricsConfig
@@ -96,18 +96,7 @@ def test_prometheus_endpoint_over_http(tmp_path):
             assert time.monotonic() < end and th.is_alive(), log.getvalue()
             time.sleep(0.05)
         time.sleep(0.2)
-        socks = {}  # one socket per interface module, as the modules send
-        t0, start = dgrams[0][0], time.monotonic()
-        for t, addr, data in dgrams:
-            delay = (t - t0) / 4.0 - (time.monotonic() - start)  # 4x real time
-            if delay > 0:
-                time.sleep(delay)
-            tx = socks.get(addr[1])
-            if tx is None:
-                tx = socks[addr[1]] = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
-            tx.sendto(data, ("127.0.0.1", lport))
-        for tx in socks.values():
-            tx.close()
+        paced_send(lport, dgrams, 4.0)  # 4x real time, one socket per interface module
         time.sleep(0.3)
         body = urllib.request.urlopen(f"http://127.0.0.1:{mport}/metrics", timeout=10).read().decode()
     finally:

@@ -9,6 +9,7 @@ import time
 
 import numpy as np
 import pytest
+from helpers_net import paced_send
 from test_listener_service import _events, _obcu_rows, _start, _wait_quiet, world  # noqa: F401 - fixture
 
 from listener.codec import GroundTruth, ImuSample, Stop, decode_input, encode_input
@@ -19,30 +20,16 @@ SPEED = 4.0  #: the 40 s run is sent in 10 s
 
 
 def _send(lport: int, dgrams, speed: float, inject=None) -> dict:
-    """Send ``dgrams`` paced at ``speed`` x real time, one socket per module (port of the run's address);
-    ``inject(i, socks, attacker, lport, dgrams)`` runs before datagram i and may send forgeries.
-    Returns the sockets' ports by module port."""
-    socks: dict[int, socket.socket] = {}
+    """Send ``dgrams`` paced at ``speed`` x real time, one socket per module (helpers_net.paced_send);
+    ``inject(i, socks, attacker, lport, dgrams)`` runs before datagram i and may send forgeries from
+    the module sockets or an attacker's own. Returns the sockets' ports by module port."""
     attacker = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
     attacker.bind(("127.0.0.1", 0))
-    t0 = dgrams[0][0]
-    start = time.monotonic()
     try:
-        for i, (t, addr, data) in enumerate(dgrams):
-            delay = (t - t0) / speed - (time.monotonic() - start)
-            if delay > 0:
-                time.sleep(delay)
-            s = socks.get(addr[1])
-            if s is None:
-                s = socks[addr[1]] = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
-                s.bind(("127.0.0.1", 0))
-            if inject is not None:
-                inject(i, socks, attacker, lport, dgrams)
-            s.sendto(data, ("127.0.0.1", lport))
-        return {p: s.getsockname()[1] for p, s in socks.items()}
+        hook = None if inject is None else (lambda i, _s, socks: inject(i, socks, attacker, lport, dgrams))
+        return paced_send(lport, dgrams, speed, hook)
     finally:
-        for s in (*socks.values(), attacker):
-            s.close()
+        attacker.close()
 
 
 def _run_attack(world, tmp_path, inject) -> tuple[int, object]:  # noqa: F811 - not the fixture
