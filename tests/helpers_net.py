@@ -6,9 +6,9 @@ import socket
 import time
 
 
-def free_port(kind: int = socket.SOCK_DGRAM) -> int:
-    """A port on 127.0.0.1 that was free a moment ago (bound by the OS, then released)."""
-    with socket.socket(socket.AF_INET, kind) as s:
+def free_tcp_port() -> int:
+    """A TCP port on 127.0.0.1 that was free a moment ago (UDP: tools.processes.free_udp_port)."""
+    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
         s.bind(("127.0.0.1", 0))
         return s.getsockname()[1]
 

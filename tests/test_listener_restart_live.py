@@ -19,7 +19,6 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from helpers_net import free_port
 from test_listener_pipeline import PORTS, _datagrams
 
 from interface_modules.presets import GPS_PRESETS, IMU_PRESETS, ODOMETER_PRESETS
@@ -33,6 +32,7 @@ from listener.codec import (
     encode_input,
 )
 from sfa.synthetic import build_track_db, generate
+from tools.processes import free_udp_port
 from track_db import TrackDatabase
 
 pytestmark = pytest.mark.slow
@@ -152,7 +152,7 @@ def _truth_error(world, rows) -> np.ndarray:
 def test_kill_9_at_a_random_time_resumes_within_3_s_and_seq_continues(world, tmp_path, seed):
     rng = np.random.default_rng(seed)
     kill_after = float(rng.uniform(8.0, 16.0))
-    lport, obcu = free_port(), Obcu()
+    lport, obcu = free_udp_port(), Obcu()
     log, ckpt = tmp_path / "listener.log", tmp_path / "state" / "ck.json"
     ckpt.parent.mkdir()
     args = ("--set", f'checkpoint.path="{ckpt}"')
@@ -227,7 +227,7 @@ def test_a_bad_checkpoint_is_refused_with_a_reason_and_ground_truth_awaited(worl
         ckpt.write_bytes(ck.encode(_valid_body(world, track="0123456789abcdef")))
     else:
         ckpt.write_bytes(ck.encode(_valid_body(world)).replace(b'"s_m":20.0', b'"s_m":900.0'))
-    lport, obcu = free_port(), Obcu()
+    lport, obcu = free_udp_port(), Obcu()
     log = tmp_path / "listener.log"
     proc = _listener(world, log, lport, obcu.port, "--set", f'checkpoint.path="{ckpt}"')
     try:
@@ -286,7 +286,7 @@ def test_forged_ground_truth_and_shifted_strobes_from_the_control_socket(world, 
                       lambda t: encode_input(GroundTruth(0, 5.0, 0.0, 0.0, 2000.0, 1, epoch0 + t)))
     forged += _shifted(dgrams, 10.0, 20.0, 2.0, lambda t: encode_input(Strobe(0, epoch0 + t + 100.0)))
     rows = _resequenced(dgrams + forged)
-    lport, obcu = free_port(), Obcu()
+    lport, obcu = free_udp_port(), Obcu()
     log = tmp_path / "listener.log"
     proc = _listener(world, log, lport, obcu.port, "--set", "link.extended=true")
     try:

@@ -19,11 +19,12 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from helpers_net import free_port, paced_send
+from helpers_net import paced_send
 from test_listener_pipeline import _datagrams
 
 from interface_modules.presets import GPS_PRESETS, IMU_PRESETS, ODOMETER_PRESETS
 from sfa.synthetic import build_track_db, generate
+from tools.processes import free_udp_port
 from track_db import TrackDatabase
 
 pytestmark = pytest.mark.slow
@@ -88,7 +89,7 @@ class Notify:
 
 
 def _start(world, tmp_path, *extra, obcu_args=(), notify: Notify | None = None, watchdog_usec=None):
-    lport, oport = free_port(), free_port()
+    lport, oport = free_udp_port(), free_udp_port()
     obcu_csv = tmp_path / "obcu.csv"
     obcu = subprocess.Popen(
         [

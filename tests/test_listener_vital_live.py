@@ -22,13 +22,14 @@ import time
 import urllib.request
 
 import pytest
-from helpers_net import free_port, paced_send
+from helpers_net import free_tcp_port, paced_send
 from prometheus_client.parser import text_string_to_metric_families
 
 from listener.config import InputConfig, LinkConfig, ListenerConfig, MetricsConfig
 from listener.jsonlog import JsonLogger, stream_is_journal
 from listener.pipeline import Pipeline
 from listener.service import ListenerService
+from tools.processes import free_udp_port
 from tools.vital_live import KINDS, run_live
 
 pytestmark = pytest.mark.slow
@@ -73,7 +74,7 @@ def test_prometheus_endpoint_over_http(tmp_path):
     run = generate(track, 1, 12.0, IMU_PRESETS["mems-train"], ODOMETER_PRESETS["wheel-odometer"],
                    GPS_PRESETS["standalone"], seed=2)
     dgrams = [d for d in _datagrams(run, start_seq=0) if d[2][0] != 10]  # no STOP: it keeps running
-    lport, oport, mport = free_port(), free_port(), free_port(socket.SOCK_STREAM)
+    lport, oport, mport = free_udp_port(), free_udp_port(), free_tcp_port()
     cfg = ListenerConfig(
         input=InputConfig(bind="127.0.0.1", port=lport),
         link=LinkConfig(obcu_host="127.0.0.1", obcu_port=oport),
@@ -194,7 +195,7 @@ def test_metrics_port_in_use_fails_at_start_with_one_line(tmp_path):
         busy.listen(1)
         port = busy.getsockname()[1]
         res = subprocess.run(
-            [sys.executable, "-m", "sfa", "listen", "--bind", "127.0.0.1", "--port", str(free_port()),
+            [sys.executable, "-m", "sfa", "listen", "--bind", "127.0.0.1", "--port", str(free_udp_port()),
              "--no-warm-up", "--set", f"metrics.port={port}"],
             capture_output=True, text=True, timeout=120,
         )
@@ -215,8 +216,8 @@ def test_sfa_listen_prefixes_priorities_when_stderr_is_the_journal(tmp_path):
         st = os.fstat(fh.fileno())
         env = {**os.environ, "JOURNAL_STREAM": f"{st.st_dev}:{st.st_ino}"}
         proc = subprocess.Popen(
-            [sys.executable, "-m", "sfa", "listen", "--bind", "127.0.0.1", "--port", str(free_port()),
-             "--obcu", f"127.0.0.1:{free_port()}", "--no-warm-up"],
+            [sys.executable, "-m", "sfa", "listen", "--bind", "127.0.0.1", "--port", str(free_udp_port()),
+             "--obcu", f"127.0.0.1:{free_udp_port()}", "--no-warm-up"],
             stderr=fh, stdout=subprocess.DEVNULL, env=env,
         )
         try:

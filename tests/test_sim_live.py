@@ -12,6 +12,7 @@ from interface_modules.live import LiveRunner, run_live, schedules_from_run
 from interface_modules.offline import generate
 from interface_modules.scenario import scenario_from_dict
 from listener.codec import Stop, decode_input
+from tools.processes import free_udp_port
 
 RECEIVE_LIMIT_S = 30.0  #: hard bound on every receive loop
 
@@ -42,12 +43,6 @@ class Receiver:
         self.got: list[tuple[int, bytes]] = []
         self.thread = threading.Thread(target=self._run, daemon=True)
         self.thread.start()
-
-    @staticmethod
-    def free_port() -> int:
-        with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
-            s.bind(("127.0.0.1", 0))
-            return s.getsockname()[1]
 
     @property
     def address(self) -> tuple[str, int]:
@@ -178,7 +173,7 @@ def test_authenticated_live_senders_against_sfa_listen(tmp_path):
     key, wrong = tmp_path / "master.hex", tmp_path / "wrong.hex"
     key.write_text(bytes(range(32)).hex() + "\n")
     wrong.write_text(bytes(range(1, 33)).hex() + "\n")
-    lport, oport = Receiver.free_port(), Receiver.free_port()
+    lport, oport = free_udp_port(), free_udp_port()
     log = tmp_path / "listener.log"
     obcu = subprocess.Popen(
         [sys.executable, "-m", "sfa", "obcu", "--port", str(oport), "--quiet", "--auth-key-file", str(key)],
