@@ -41,10 +41,10 @@ import numpy as np
 
 
 def _rss_mb(pid: int) -> float:
-    for line in Path(f"/proc/{pid}/status").read_text().splitlines():
-        if line.startswith("VmRSS:"):
-            return int(line.split()[1]) / 1024.0
-    return float("nan")
+    from tools.processes import proc_status_kib
+
+    kib = proc_status_kib(pid, "VmRSS")
+    return float("nan") if kib is None else kib / 1024.0
 
 
 def flood_child(port: int, rate: float, seconds: float, seed: int, max_bytes: int) -> int:
@@ -78,6 +78,7 @@ def run_reader(
     packets, reader: str, wall_s: float, rate: float, sets: list[str], tmp: Path, nice: int = 0
 ) -> dict:
     from listener.codec import ImuSample, decode_input
+    from tools.bench_live import obcu_ack_loop
     from tools.errors import ToolError
     from tools.processes import free_udp_port, listen_argv, process_cpu_s, start_listener
 
@@ -94,22 +95,10 @@ def run_reader(
     received: dict[float, float] = {}
     stop = threading.Event()
 
-    def receive() -> None:
-        last_ack = 0.0
-        while not stop.is_set():
-            try:
-                data, peer = obcu.recvfrom(2048)
-            except TimeoutError:
-                continue
-            now = time.monotonic()
-            if len(data) >= 18:
-                seq, epoch = struct.unpack_from("<Hd", data)
-                received.setdefault(epoch, now)
-                if now - last_ack >= 1.0:
-                    obcu.sendto(struct.pack("<H", seq), peer)
-                    last_ack = now
+    def on_output(data: bytes, now: float) -> None:
+        received.setdefault(struct.unpack_from("<Hd", data)[1], now)
 
-    rx = threading.Thread(target=receive, daemon=True)
+    rx = threading.Thread(target=obcu_ack_loop, args=(obcu, stop, on_output), daemon=True)
     rx.start()
     t0 = packets[0].arrival_s
     chosen = [p for p in packets if p.arrival_s - t0 <= wall_s]

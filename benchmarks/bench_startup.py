@@ -32,7 +32,6 @@ import json
 import os
 import socket
 import statistics
-import struct
 import subprocess
 import sys
 import tempfile
@@ -60,22 +59,13 @@ def _udp_bound(port: int) -> bool:
     return False
 
 
-def _status_kib(pid: int, key: str) -> int | None:
-    try:
-        for line in Path(f"/proc/{pid}/status").read_text().splitlines():
-            if line.startswith(key + ":"):
-                return int(line.split()[1])
-    except OSError:
-        return None
-    return None
-
-
 def start_once(packets, cache_base: Path, tmp: Path, seconds: float, engine: str = "auto",
                timeout_s: float = 180.0, label: str = "run", track: str | None = None,
                sets: tuple[str, ...] = ()) -> dict:
     """Spawn ``sfa listen`` with its numba cache under ``cache_base``, stream ``packets`` at 1x from
     the moment its port is bound, and time its start; returns the figures (seconds since spawn)."""
-    from tools.processes import free_udp_port, listen_argv, terminate
+    from tools.bench_live import obcu_ack_loop
+    from tools.processes import free_udp_port, listen_argv, proc_status_kib, terminate
 
     lport = free_udp_port()
     obcu = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
@@ -91,23 +81,12 @@ def start_once(packets, cache_base: Path, tmp: Path, seconds: float, engine: str
     outputs = [0]
     stop = threading.Event()
 
-    def receive() -> None:
-        last_ack = 0.0
-        while not stop.is_set():
-            try:
-                data, peer = obcu.recvfrom(2048)
-            except (TimeoutError, OSError):
-                continue
-            now = time.monotonic()
-            if len(data) >= 18:
-                if not first:
-                    first.append(now)
-                outputs[0] += 1
-                if now - last_ack >= 1.0:
-                    obcu.sendto(struct.pack("<H", struct.unpack_from("<H", data)[0]), peer)
-                    last_ack = now
+    def on_output(_data: bytes, now: float) -> None:
+        if not first:
+            first.append(now)
+        outputs[0] += 1
 
-    rx = threading.Thread(target=receive, daemon=True)
+    rx = threading.Thread(target=obcu_ack_loop, args=(obcu, stop, on_output), daemon=True)
     rx.start()
     socks: dict[int, socket.socket] = {}
     result: dict = {"label": label}
@@ -143,8 +122,8 @@ def start_once(packets, cache_base: Path, tmp: Path, seconds: float, engine: str
                 break
         while not first and time.monotonic() < deadline and proc.poll() is None:
             time.sleep(0.01)  # a first output later than --seconds is still timed (the stream ended)
-        result["peak_rss_mib"] = (_status_kib(proc.pid, "VmHWM") or 0) / 1024.0
-        result["rss_end_mib"] = (_status_kib(proc.pid, "VmRSS") or 0) / 1024.0
+        result["peak_rss_mib"] = (proc_status_kib(proc.pid, "VmHWM") or 0) / 1024.0
+        result["rss_end_mib"] = (proc_status_kib(proc.pid, "VmRSS") or 0) / 1024.0
         result["bound_s"] = bound - spawn
         result["first_output_s"] = first[0] - spawn if first else None
         result["stream_ended"] = stream_end

@@ -19,6 +19,7 @@ import time
 from pathlib import Path
 
 from tools.bench_table import Row
+from tools.processes import proc_status_kib
 
 SECTION = "listener"
 LATENCY_SCENARIO = "tram-urban"
@@ -177,7 +178,7 @@ class SoakRun:
                         self.error = f"listener did not start: {log_path.read_text()[-300:]}"
                         return
                     time.sleep(0.1)
-                acker = threading.Thread(target=_ack_loop, args=(obcu, stop), daemon=True)
+                acker = threading.Thread(target=obcu_ack_loop, args=(obcu, stop), daemon=True)
                 acker.start()
                 sim = [
                     sys.executable,
@@ -223,7 +224,9 @@ class SoakRun:
             obcu.close()
 
 
-def _ack_loop(sock: socket.socket, stop: threading.Event) -> None:
+def obcu_ack_loop(sock: socket.socket, stop: threading.Event, on_output=None) -> None:
+    """A minimal OBCU on ``sock`` until ``stop``: ``on_output(data, now)`` for each output (>= 18 bytes,
+    ``now`` monotonic), and an ACK of the newest one at most once a second (keeps the link UP)."""
     last = 0.0
     while not stop.is_set():
         try:
@@ -231,16 +234,15 @@ def _ack_loop(sock: socket.socket, stop: threading.Event) -> None:
         except (TimeoutError, OSError):
             continue
         now = time.monotonic()
-        if len(data) >= 18 and now - last >= 1.0:
+        if len(data) < 18:
+            continue
+        if on_output is not None:
+            on_output(data, now)
+        if now - last >= 1.0:
             sock.sendto(struct.pack("<H", struct.unpack_from("<H", data)[0]), peer)
             last = now
 
 
 def _rss_mib(pid: int) -> float | None:
-    try:
-        for line in Path(f"/proc/{pid}/status").read_text().splitlines():
-            if line.startswith("VmRSS:"):
-                return int(line.split()[1]) / 1024.0
-    except OSError:
-        return None
-    return None
+    kib = proc_status_kib(pid, "VmRSS")
+    return None if kib is None else kib / 1024.0

@@ -26,6 +26,17 @@ def process_cpu_s(pid: int) -> float:
     return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
 
 
+def proc_status_kib(pid: int, key: str) -> int | None:
+    """A ``/proc/PID/status`` figure in KiB (``VmRSS``, ``VmHWM``, ...); None when unreadable."""
+    try:
+        for line in Path(f"/proc/{pid}/status").read_text().splitlines():
+            if line.startswith(key + ":"):
+                return int(line.split()[1])
+    except OSError:
+        return None
+    return None
+
+
 def listen_argv(port: int, obcu_port: int, *sets: str, track: str | None = None,
                 host: str = "127.0.0.1") -> list[str]:
     """``sfa listen`` on ``host:port`` sending to the OBCU at ``host:obcu_port``, with ``--set`` overrides."""
