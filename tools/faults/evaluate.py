@@ -101,6 +101,19 @@ def _recovery(obs: Observation) -> tuple[float | None, float | None]:
 
 def evaluate(obs: Observation, expect: dict[str, Any]) -> dict[str, Any]:
     """One results row: figures, then ``checks`` (PASS/FAIL per expectation) and ``verdict``."""
+    row, checks = _figures(obs, expect)
+    return _with_verdict(row, checks, obs.notes)
+
+
+def _with_verdict(row: dict[str, Any], checks: dict[str, bool], notes: list[str]) -> dict[str, Any]:
+    row["checks"] = " ".join(f"{k}:{'PASS' if ok else 'FAIL'}" for k, ok in checks.items()) or "-"
+    row["verdict"] = "PASS" if all(checks.values()) else "FAIL"
+    row["notes"] = "; ".join(notes)
+    return row
+
+
+def _figures(obs: Observation, expect: dict[str, Any]) -> tuple[dict[str, Any], dict[str, bool]]:
+    """The row's figures and the PASS (True) / FAIL of each expectation."""
     acc = accuracy(obs.fresh_epoch, obs.fresh_arc, obs.truth_epoch, obs.truth_arc, obs.fresh_lo, obs.fresh_hi)
     seq = obs.metrics.get("sequencing", {})
     inp = obs.metrics.get("input", {})
@@ -190,11 +203,7 @@ def evaluate(obs: Observation, expect: dict[str, Any]) -> dict[str, Any]:
     row["memory_growth_mb"] = _fmt(obs.memory_growth_mb, 1)
     row["latency_p99_ms"] = _fmt(obs.latency_p99_ms, 1)
     row["wall_s"] = round(obs.wall_s, 1)
-    checks = _checks(row, obs, expect, acc, fault_cov, reasons, deg, rec)
-    row["checks"] = " ".join(f"{k}:{'PASS' if ok else 'FAIL'}" for k, ok in checks.items()) or "-"
-    row["verdict"] = "PASS" if all(checks.values()) else "FAIL"
-    row["notes"] = "; ".join(obs.notes)
-    return row
+    return row, _checks(row, obs, expect, acc, fault_cov, reasons, deg, rec)
 
 
 _STATUS = {0: "initialising", 1: "nominal", 2: "degraded", 3: "lost"}
@@ -342,8 +351,7 @@ def pool(runs: list[Observation]) -> Observation:
         latency_delta_ms=_max_or_none([r.latency_delta_ms for r in runs]),
         reasons_seen=set().union(*(r.reasons_seen for r in runs)),
         wall_s=sum(r.wall_s for r in runs),
-        notes=[f"{len(runs)} seeds pooled (p95/max/coverage: " + ", ".join(_brief(r) for r in runs) + ")"]
-        + [n for r in runs for n in r.notes],
+        notes=[n for r in runs for n in r.notes],
         corruption=any(r.corruption for r in runs),
         auth=_summed([r.auth for r in runs]) if all(r.auth for r in runs) else {},
         fresh_status=status,
@@ -353,11 +361,6 @@ def pool(runs: list[Observation]) -> Observation:
 def _max_or_none(values: list[float | None]) -> float | None:
     got = [v for v in values if v is not None]
     return max(got) if got else None
-
-
-def _brief(r: Observation) -> str:
-    a = accuracy(r.fresh_epoch, r.fresh_arc, r.truth_epoch, r.truth_arc, r.fresh_lo, r.fresh_hi)
-    return f"{_fmt(a.p95_m)}/{_fmt(a.max_m)}/{_fmt(a.coverage, 3)}"
 
 
 def _fenced(epoch: np.ndarray, eps: float) -> np.ndarray:
@@ -373,27 +376,19 @@ POOLED_CHECKS = frozenset({"p95_m", "max_m", "coverage", "fault_coverage"})
 def evaluate_pooled(runs: list[Observation], expect: dict[str, Any]) -> dict[str, Any]:
     """The row of several repetitions: figures of :func:`pool`; the accuracy checks
     (:data:`POOLED_CHECKS`) on the pooled outputs, every other check passing only where it passes in
-    every repetition (a bound such as ``late_max`` is per run, not per sum of runs)."""
-    row = evaluate(pool(runs), expect)
+    every repetition (a bound such as ``late_max`` is per run, not per sum of runs). ``notes`` lists
+    each repetition's p95/max/coverage."""
     if len(runs) == 1:
-        return row
-    per_run = [_parse_checks(evaluate(r, expect)["checks"]) for r in runs]
-    checks = _parse_checks(row["checks"])
+        return evaluate(runs[0], expect)
+    singles = [_figures(r, expect) for r in runs]
+    pooled = pool(runs)
+    row, checks = _figures(pooled, expect)
+    notes = [f"{len(runs)} seeds pooled (p95/max/coverage: "
+             + ", ".join(f"{r['p95_m']}/{r['max_m']}/{r['coverage']}" for r, _ in singles) + ")"]
     for key in checks:
         if key not in POOLED_CHECKS:
-            bad = [k for k, c in enumerate(per_run) if not c.get(key, False)]
+            bad = [k for k, (_, c) in enumerate(singles) if not c.get(key, False)]
             checks[key] = not bad
             if bad:
-                row["notes"] += f"; {key} fails in seeds {','.join(map(str, bad))}"
-    row["checks"] = " ".join(f"{k}:{'PASS' if ok else 'FAIL'}" for k, ok in checks.items()) or "-"
-    row["verdict"] = "PASS" if all(checks.values()) else "FAIL"
-    return row
-
-
-def _parse_checks(text: str) -> dict[str, bool]:
-    out: dict[str, bool] = {}
-    for part in text.split():
-        key, _, verdict = part.partition(":")
-        if verdict in ("PASS", "FAIL"):
-            out[key] = verdict == "PASS"
-    return out
+                notes.append(f"{key} fails in seeds {','.join(map(str, bad))}")
+    return _with_verdict(row, checks, notes + pooled.notes)
