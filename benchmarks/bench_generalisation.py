@@ -4,7 +4,7 @@ See tools/bench_generalisation.py for the families (as-built truth paths, actual
 per seed, the filter on the datasheet presets and the database of the source geometry).
 
 Usage: python benchmarks/bench_generalisation.py [--seeds 20] [--family NAME ...] [--jobs 2]
-       [--duration 300] [--step 0.5]
+       [--duration 300] [--step 0.5] [--set FIELD=VALUE ...]
 """
 
 from __future__ import annotations
@@ -18,7 +18,11 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 
 def main(argv: list[str] | None = None) -> int:
+    from sfa.errors import FilterConfigError
+    from sfa.presets import datasheet_config_for
     from tools.bench_generalisation import FAMILIES, markdown_table, run_families
+    from tools.errors import ToolError
+    from tools.field_values import parse_field_values
 
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--seeds", type=int, default=20, help="seeds per family (default 20)")
@@ -26,13 +30,21 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--jobs", type=int, default=1, help="parallel processes (default 1)")
     ap.add_argument("--duration", type=float, default=300.0, help="simulated seconds per run (default 300)")
     ap.add_argument("--step", type=float, default=0.5, help="error sampling step [s] (default 0.5)")
+    ap.add_argument("--set", action="append", default=[], metavar="FIELD=VALUE",
+                    help="FilterConfig field on top of the datasheet presets, for SFA only (an ablation; "
+                         "repeatable), e.g. --set cusum_h_sigma=1e9")
     args = ap.parse_args(argv)
     names = args.family or [f.name for f in FAMILIES]
     if args.seeds < 1 or args.jobs < 1 or args.duration <= 0 or args.step <= 0:
         ap.error("--seeds and --jobs must be >= 1, --duration and --step > 0")
+    try:
+        overrides = parse_field_values(args.set)
+        datasheet_config_for().replace(**overrides)  # unknown fields and bad values fail here, not per run
+    except (ToolError, FilterConfigError) as exc:
+        ap.error(str(exc))
     t0 = time.time()
     rows = run_families(names, args.seeds, args.jobs, args.step, args.duration,
-                        log=lambda m: print(m, file=sys.stderr))
+                        log=lambda m: print(m, file=sys.stderr), overrides=overrides)
     print(markdown_table(rows))
     print(f"\n{args.seeds} seeds x {len(names)} families, first {args.duration:g} s of each run, "
           f"errors every {args.step:g} s; {time.time() - t0:.0f} s", file=sys.stderr)

@@ -122,6 +122,9 @@ class FilterConfig:
     step_min_m: float = 5.0  #: smallest gated GNSS innovation classified as a step [m]
     cusum_k_sigma: float = 0.5  #: CUSUM drift allowance [sigma of the along-track innovation]
     cusum_h_sigma: float = 8.0  #: CUSUM decision threshold [sigma]
+    #: k and h are per independent fix: fixes closer than this count as the fraction dt / this of one (a
+    #: receiver's errors are correlated over about a second, so 10 Hz fixes are not 10x the evidence) [s]
+    cusum_min_interval_s: float = 1.0
     gps_holdoff_s: float = 20.0  #: GNSS fixes ignored after a ramp detection [s]
     reacquire_s: float = 30.0  #: duration of self-consistent GNSS rejections that re-anchor the position [s]
     reacquire_consistency_m: float = 3.0  #: largest drift of the rejected along-track residual [m]
@@ -250,6 +253,7 @@ class FilterConfig:
         c[L.K_STEP_MIN_M] = self.step_min_m
         c[L.K_CUSUM_K] = self.cusum_k_sigma
         c[L.K_CUSUM_H] = self.cusum_h_sigma
+        c[L.K_CUSUM_DT] = self.cusum_min_interval_s
         c[L.K_GPS_HOLDOFF_S] = self.gps_holdoff_s
         c[L.K_REACQ_S] = self.reacquire_s
         c[L.K_REACQ_CONSIST_M] = self.reacquire_consistency_m

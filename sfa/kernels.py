@@ -134,6 +134,7 @@ from sfa.layout import (
     K_CURV_REG_M,
     K_CURV_REL,
     K_CURV_SIGMA,
+    K_CUSUM_DT,
     K_CUSUM_H,
     K_CUSUM_K,
     K_DEGRADED_SIGMA,
@@ -239,6 +240,8 @@ O_HELD_OFF = 7
 LOG_2PI = math.log(2.0 * math.pi)
 COS_MAX_ROLL = math.cos(0.35)  #: cos of the largest roll the gyro compensation accepts (0.35 rad)
 BIG = 1e100  #: bound on the factors of an update: products stay far from overflow
+GPS_IEKF_ITERATIONS = 3  #: Gauss-Newton re-linearisations of a GNSS fix in the arc length (step_gps)
+GPS_IEKF_TOL_M = 1e-3  #: they stop once the linearisation point moves less than this [m]
 
 
 def _into_imu_step(expr, caller_ir, callee_ir) -> bool:
@@ -1239,6 +1242,9 @@ def step_odo(x, P, aux, cnt, mem, cfg, ts, tg, t, speed, sigma):
             aux[A_SLIP] = 1.0  # slip / slide declared
             aux[A_SLIP_T0] = t
             aux[A_SLIP_LLR] = 0.0
+            # one aid excluded at a time: GNSS, on hold after a ramp detection, comes back to arbitrate
+            # the slip and to bound the accelerometer (with both out it would bridge alone)
+            aux[A_GPS_HOLD] = -math.inf
             cnt[C_SLIP] += 1
             # the onset samples that passed the gate pulled the speed: rewind and use the IMU alone.
             # The odometer-aided position before the rewind is where the odometer puts the train
@@ -1278,11 +1284,12 @@ def step_odo(x, P, aux, cnt, mem, cfg, ts, tg, t, speed, sigma):
 
 # ============================================================== GNSS
 @njit(cache=True, _nrt=True)  # allocates H: numba's allocator, whatever the caller's flags
-def gps_model(x, ts, te, tn, dl):
-    """h(x) = point_at(s - v dl) + (e_gnss, n_gnss) and its Jacobian rows (2 x NX).
+def gps_model(x, ts, te, tn, dl, s_lin):
+    """h(x*) = point_at(s_lin - v dl) + (e_gnss, n_gnss) and its Jacobian rows (2 x NX) at x*, the state
+    with its arc length replaced by s_lin (the linearisation point; s_lin = x[S]: the plain EKF).
 
     dl >= 0 is how much older the fix is than the state (late-fix back-propagation; 0 normally)."""
-    s_eval = x[S] - x[V] * dl
+    s_eval = s_lin - x[V] * dl
     e, n, de, dn = geom_at(ts, te, tn, s_eval)
     H = np.zeros((2, NX))
     H[0, S] = de  # dh/ds = tangent
@@ -1292,6 +1299,26 @@ def gps_model(x, ts, te, tn, dl):
     H[0, GE] = 1.0
     H[1, GN] = 1.0
     return e + x[GE], n + x[GN], H, de, dn
+
+
+@njit(cache=True, _nrt=True)  # allocates R
+def gps_noise_matrix(cfg, sw, ue, un, dl):
+    """R of a fix: sw^2 I + sigma_lat^2 n n' (n = unit normal to the track: digitisation / lateral
+    offset; (ue, un) the unit tangent), plus, for a fix dl > 0 older than the state, the speed noise over
+    dl, q dl^3 / 3, along the tangent."""
+    sl2 = cfg[K_TRACK_LAT] ** 2
+    R = np.zeros((2, 2))
+    R[0, 0] = sw * sw + sl2 * un * un
+    R[1, 1] = sw * sw + sl2 * ue * ue
+    R[0, 1] = -sl2 * ue * un
+    R[1, 0] = R[0, 1]
+    if dl > 0.0:
+        qa = cfg[K_Q_ACC] * dl * dl * dl / 3.0
+        R[0, 0] += qa * ue * ue
+        R[1, 1] += qa * un * un
+        R[0, 1] += qa * ue * un
+        R[1, 0] += qa * ue * un
+    return R
 
 
 @njit(cache=True, _nrt=True)  # calls gps_model (allocates)
@@ -1333,39 +1360,41 @@ def step_gps(x, P, aux, cnt, cfg, ts, te, tn, tg, t, east, north, sigma_h, fix_q
         P[GE, GE] = gm * gm
         P[GN, GN] = gm * gm
     check_timeouts(aux, cnt, cfg, max(t, aux[A_T_STATE]))
-    he, hn, H, de, dn = gps_model(x, ts, te, tn, dl)
-    y = np.zeros(2)
-    y[0] = east - he  # y = z - h(x)
-    y[1] = north - hn
-    tnorm = math.sqrt(de * de + dn * dn)
-    ue = de / tnorm
-    un = dn / tnorm
     if cfg[K_AD_WINDOW] > 0.0:  # the fix's distance from the line into the GNSS statistics (gnss_noise)
         c_x, n_e, n_n, s_foot = cross_track(ts, te, tn, x[S] - x[V] * dl, east, north)
         gnss_noise.observe(aux, cfg, t, c_x, n_e, n_n, s_foot, sigma_h)
     # white noise: the model's white sigma, scaled up when the receiver reports a worse sigma_h
     sw = gnss_noise.white_sigma(aux, sigma_h)
-    # R = sw^2 I + sigma_lat^2 n n' (n = unit normal to the track: digitisation/lateral offset)
-    sl2 = cfg[K_TRACK_LAT] ** 2
-    R = np.zeros((2, 2))
-    R[0, 0] = sw * sw + sl2 * un * un
-    R[1, 1] = sw * sw + sl2 * ue * ue
-    R[0, 1] = -sl2 * ue * un
-    R[1, 0] = R[0, 1]
-    if dl > 0.0:  # a late fix also carries the speed noise over dl: q dl^3 / 3 along the tangent
-        qa = cfg[K_Q_ACC] * dl * dl * dl / 3.0
-        R[0, 0] += qa * ue * ue
-        R[1, 1] += qa * un * un
-        R[0, 1] += qa * ue * un
-        R[1, 0] += qa * ue * un
-    s00, s01, s11, si00, si01, si11, nis, logdet = innovation2(P, aux, H, R, y)
+    # iterated EKF in the arc length (Bell & Cathey): h is linearised at the posterior's s, found by at
+    # most GPS_IEKF_ITERATIONS Gauss-Newton steps from the prior's. Where the line bends between the
+    # estimate and the fix, the tangent at the estimate points away from the fix and one linearisation's
+    # NIS grows with the square of the bend's offset, not with the distance along the line: a widened
+    # arc-length variance would never re-admit a fix past a curve
+    y = np.zeros(2)
+    s_lin = x[S]
+    for it in range(GPS_IEKF_ITERATIONS + 1):
+        he, hn, H, de, dn = gps_model(x, ts, te, tn, dl, s_lin)
+        y[0] = east - he - de * (x[S] - s_lin)  # y = z - h(x*) - H (x - x*): x - x* is along s only
+        y[1] = north - hn - dn * (x[S] - s_lin)
+        tnorm = math.sqrt(de * de + dn * dn)
+        ue = de / tnorm
+        un = dn / tnorm
+        R = gps_noise_matrix(cfg, sw, ue, un, dl)
+        s00, s01, s11, si00, si01, si11, nis, logdet = innovation2(P, aux, H, R, y)
+        if it == GPS_IEKF_ITERATIONS:
+            break
+        w0 = si00 * y[0] + si01 * y[1]  # S^-1 y
+        w1 = si01 * y[0] + si11 * y[1]
+        s_next = x[S] + aux[A_WK_PHT + S] * w0 + aux[A_WK_PHT + NX + S] * w1  # s + (P H' S^-1 y)_s
+        if abs(s_next - s_lin) < GPS_IEKF_TOL_M:
+            break
+        s_lin = s_next
     aux[A_LAST_NIS_GPS] = nis
     along = y[0] * ue + y[1] * un  # along-track component of the innovation [m]
-    if t < aux[A_GPS_HOLD]:
-        cnt[C_GPS_HELD] += 1
-        return O_HELD_OFF
-    if aux[A_SLIP] != 0.0 and aux[A_SLIP_LLR] > -cfg[K_SLIP_ARB_LLR]:
-        # a declared slip not yet confirmed: GNSS arbitrates instead of correcting (an update would let
+    if aux[A_SLIP] != 0.0 and (aux[A_SLIP_LLR] > -cfg[K_SLIP_ARB_LLR] or nis > cfg[K_GATE_GPS]):
+        # a declared slip not yet confirmed, or confirmed and now contradicted by a fix the IMU-bridged
+        # estimate fails (the vote goes on from the floor, -slip_arbitration_log_ratio: a sequential test
+        # that never latches): GNSS arbitrates instead of correcting (an update would let
         # the correlated GNSS error state absorb the very difference being tested). The fix against the
         # odometer's position, estimate + A_SLIP_DS along the tangent: log-likelihood ratio (equal S)
         # (NIS - NIS_odo) / 2, NIS capped (robust); a fix neither position explains carries no vote
@@ -1378,6 +1407,12 @@ def step_gps(x, P, aux, cnt, cfg, ts, te, tn, tg, t, east, north, sigma_h, fix_q
             llr = aux[A_SLIP_LLR] + 0.5 * (min(nis, cap) - min(nis_odo, cap))
             aux[A_SLIP_LLR] = max(llr, -cfg[K_SLIP_ARB_LLR])
             aux[A_T_GPS] = t  # GNSS is alive and in use
+        cnt[C_GPS_HELD] += 1
+        return O_HELD_OFF
+    if t < aux[A_GPS_HOLD]:
+        # a ramp hold-off keeps the fixes out of the state; they still arbitrate a declared slip (above):
+        # the vote compares two positions with the same fix, and excluding GNSS must not leave the
+        # accelerometer alone against an odometer the fixes agree with
         cnt[C_GPS_HELD] += 1
         return O_HELD_OFF
     if nis > cfg[K_GATE_GPS]:
@@ -1416,8 +1451,17 @@ def step_gps(x, P, aux, cnt, cfg, ts, te, tn, tg, t, east, north, sigma_h, fix_q
     s_along = ue * (s00 * ue + s01 * un) + un * (s01 * ue + s11 * un)  # u' S u
     r = along / math.sqrt(s_along)
     k = cfg[K_CUSUM_K]
-    aux[A_CUSUM_P] = max(0.0, aux[A_CUSUM_P] + r - k)
-    aux[A_CUSUM_N] = max(0.0, aux[A_CUSUM_N] - r - k)
+    # a fix dt after the previous one in use adds min(1, dt / cusum_min_interval_s) of an independent
+    # fix's evidence (weighted CUSUM): the detector's run lengths do not shrink with the fix rate
+    wt = min(1.0, max(t - aux[A_T_GPS], 0.0) / cfg[K_CUSUM_DT]) if cfg[K_CUSUM_DT] > 0.0 else 1.0
+    if aux[A_SLIP] != 0.0:
+        # while the odometer is out for a slip GNSS is the only aid, and there is no reference to tell a
+        # ramp from the accelerometer's drift: nothing accumulates (nor fires the moment the slip ends)
+        wt = 0.0
+        aux[A_CUSUM_P] = 0.0
+        aux[A_CUSUM_N] = 0.0
+    aux[A_CUSUM_P] = max(0.0, aux[A_CUSUM_P] + wt * (r - k))
+    aux[A_CUSUM_N] = max(0.0, aux[A_CUSUM_N] + wt * (-r - k))
     if aux[A_CUSUM_P] > cfg[K_CUSUM_H] or aux[A_CUSUM_N] > cfg[K_CUSUM_H]:
         cnt[C_RAMP] += 1
         aux[A_RAMP_T] = t

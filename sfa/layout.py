@@ -275,7 +275,8 @@ K_CURV_CORR_M = 66  #: along-track correlation length of the curvature error [m]
 K_Q_REG = 67  #: map registration: arc-length random walk per metre travelled [m^2/m]
 K_AD_WINDOW = 68  #: memory of the adaptive GNSS error statistics (0: the preset's model, fixed) [s]
 K_AD_PRIOR = 69  #: weight of the preset's model in those statistics, as seconds of data [s]
-NCFG = 70
+K_CUSUM_DT = 70  #: GNSS fixes closer than this count as a fraction dt / this of one in the CUSUM [s]
+NCFG = 71
 
 # ---------------------------------------------------------------- measurement kinds and result codes
 M_IMU = 1

@@ -197,22 +197,42 @@ class Oracle:
             ds = line.s_m[i + 1] - line.s_m[i]
             return (line.east_m[i + 1] - line.east_m[i]) / ds, (line.north_m[i + 1] - line.north_m[i]) / ds
 
-        def hj(x):
-            de, dn = deriv(x[0, 0])
+        def jac(s_lin):
+            de, dn = deriv(s_lin)
             z = [0] * (NX - 6)
             return np.array([[de, 0, 0, 0, 1, 0, *z], [dn, 0, 0, 0, 0, 1, *z]], dtype=float)
 
-        def hx(x):
-            e, n = line.point_at(x[0, 0])
-            return np.array([[float(e) + x[4, 0]], [float(n) + x[5, 0]]])
+        def noise(s_lin):
+            de, dn = deriv(s_lin)
+            nrm = math.hypot(de, dn)
+            ue, un = de / nrm, dn / nrm
+            sw = c.gps_white_sigma_m * max(1.0, m.sigma_h_m / c.gps_nominal_sigma_h_m)
+            sl2 = c.track_lateral_sigma_m ** 2
+            return np.array([[sw * sw + sl2 * un * un, -sl2 * ue * un],
+                             [-sl2 * ue * un, sw * sw + sl2 * ue * ue]])
 
-        de, dn = deriv(self.ekf.x[0, 0])
-        nrm = math.hypot(de, dn)
-        ue, un = de / nrm, dn / nrm
-        sw = c.gps_white_sigma_m * max(1.0, m.sigma_h_m / c.gps_nominal_sigma_h_m)
-        sl2 = c.track_lateral_sigma_m ** 2
-        R = np.array([[sw * sw + sl2 * un * un, -sl2 * ue * un], [-sl2 * ue * un, sw * sw + sl2 * ue * ue]])
-        self.update(np.array([[east], [north]]), hj, hx, R=R)
+        def h_at(x, s_lin):
+            """h linearised at x* = x with s -> s_lin: h(x*) + H(x*) (x - x*)."""
+            e, n = line.point_at(s_lin)
+            xs = x.copy()
+            xs[0, 0] = s_lin
+            return np.array([[float(e) + xs[4, 0]], [float(n) + xs[5, 0]]]) + jac(s_lin) @ (x - xs)
+
+        # iterated EKF in the arc length (docs/filter.md): Gauss-Newton steps s <- s + (P H' S^-1 y)_s, each
+        # linearised at the last, at most 3, until the step is under 1 mm; the update uses the last
+        z = np.array([[east], [north]])
+        x, P = self.ekf.x, self.ekf.P
+        s_lin = x[0, 0]
+        for _ in range(3):
+            H = jac(s_lin)
+            y = z - h_at(x, s_lin)
+            S = H @ P @ H.T + noise(s_lin)
+            s_next = x[0, 0] + (P @ H.T @ np.linalg.solve(S, y))[0, 0]
+            if abs(s_next - s_lin) < 1e-3:
+                break
+            s_lin = s_next
+        H_lin = jac(s_lin)
+        self.update(z, lambda x, H=H_lin: H, lambda x, s=s_lin: h_at(x, s), R=noise(s_lin))
 
 
 #: the digitised-map terms of sfa.presets.datasheet_config_for on the model-matched sensor preset: the

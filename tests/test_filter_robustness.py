@@ -432,3 +432,20 @@ def test_covariance_stays_exactly_symmetric_through_faults(db, cfg):
     assert c["slip_detections"] >= 1 and c["gnss_step_detections"] + c["gps_gated"] >= 1
     assert c["zupt_updates"] > 0 and checked > 20000
     assert worst == 0.0
+
+
+def test_a_fix_past_a_bend_re_anchors_a_widened_estimate(db, cfg):
+    """The GNSS update is iterated in the arc length (docs/filter.md, Updates): with the arc length known
+    only to 300 m, a fix on the far leg of line 1's 90 degree curve (the estimate 1.9 km up the northern
+    leg, the fix 600 m further on, past the bend) is accepted and moves the estimate to within metres
+    of the fix's place. Linearised once at the estimate, the tangent points north while the fix lies
+    ~130 m east of that tangent's line: NIS in the thousands, gated, and the estimate never came back
+    (the real Dresden drive, session 9)."""
+    f = TrackFilter(db, cfg.replace(use_gyro=False))
+    assert f.seed(100.0, 1, 1900.0, 0.0, 1, 300.0, 0.1).outcome == Outcome.INITIALISED
+    lat, lon = db.line(1).latlon_at(2500.0)
+    upd = f.process(GpsMeas(100.0, float(lat), float(lon), 0.0, 1.0, 1, 12))
+    assert upd.outcome == Outcome.ACCEPTED, upd
+    est = f.estimate()
+    assert abs(est.arc_length_m - 2500.0) < 5.0, est
+    assert est.sigma_s_m < 10.0, est

@@ -127,7 +127,7 @@ def family_scenario(family: Family, seed: int, max_duration_s: float | None):
 
 def run_one(args: tuple) -> dict:
     """One family and seed: per-estimator absolute errors, SFA's coverage samples."""
-    family_name, seed, step_s, max_duration_s = args
+    family_name, seed, step_s, max_duration_s, overrides = args
     from interface_modules.offline import generate
     from interface_modules.tracks import database_path
     from sfa import baselines
@@ -145,6 +145,8 @@ def run_one(args: tuple) -> dict:
     grid = np.arange(te[0] + step_s, te[-1], step_s)
     presets = family.filter_presets or (sc.imu.preset, sc.odometer.preset, sc.gps.preset)
     cfg = datasheet_config_for(*presets)
+    if overrides:  # an ablation (--set): the same field values for SFA and SFA + gyro
+        cfg = cfg.replace(**dict(overrides))
     out: dict = {"family": family_name, "seed": seed}
     for key, c in (("sfa", cfg), ("sfa-gyro", cfg.replace(use_gyro=True))):
         est, _ = acc.run_sfa(track, c, meas, grid)
@@ -162,9 +164,11 @@ def run_one(args: tuple) -> dict:
 
 
 def run_families(names, seeds: int, jobs: int = 1, step_s: float = 0.5, max_duration_s: float | None = 300.0,
-                 log=print) -> list[dict]:
-    """Every (family, seed) run, then one summary row per family."""
-    tasks = [(n, s, step_s, max_duration_s) for n in names for s in range(seeds)]
+                 log=print, overrides: dict | None = None) -> list[dict]:
+    """Every (family, seed) run, then one summary row per family. ``overrides``: FilterConfig fields set
+    on top of the datasheet configuration (an ablation; the baselines keep theirs)."""
+    items = tuple(sorted((overrides or {}).items()))
+    tasks = [(n, s, step_s, max_duration_s, items) for n in names for s in range(seeds)]
     if jobs > 1:
         import multiprocessing as mp
 

@@ -55,25 +55,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                             "comes from the GNSS receiver, so a real outage loses both)")
 
 
-def _overrides(items: list[str]) -> dict[str, object]:
-    from tools.errors import ToolError
-
-    out: dict[str, object] = {}
-    for item in items:
-        key, sep, value = item.partition("=")
-        if not sep or not key.strip():
-            raise ToolError(f"--eval-set expects FIELD=VALUE, got {item!r}")
-        v = value.strip()
-        if v.lower() in ("true", "false"):
-            out[key.strip()] = v.lower() == "true"
-            continue
-        try:
-            out[key.strip()] = int(v) if v.lstrip("-").isdigit() else float(v)
-        except ValueError:
-            raise ToolError(f"--eval-set {key}: {value!r} is not a number or true/false") from None
-    return out
-
-
 def run(args: argparse.Namespace) -> int:
     import json
     import math
@@ -122,8 +103,9 @@ def run(args: argparse.Namespace) -> int:
         truth_figures,
         write_updates_csv,
     )
+    from tools.field_values import parse_field_values
 
-    overrides = _overrides(args.eval_set)
+    overrides = parse_field_values(args.eval_set, "--eval-set")
     try:
         fcfg = filter_config_for(**overrides)
     except FilterConfigError as exc:

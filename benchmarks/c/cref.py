@@ -53,7 +53,7 @@ class CReferenceUnavailable(RuntimeError):
 
 def layout_header() -> str:
     """``#define`` lines for every integer slot of sfa.layout the C code uses, the adaptive GNSS model's
-    layout constants and sfa.gnss_noise's constants (GN_*), NVALS and COS_MAX_ROLL (sfa.kernels); floats
+    layout constants and sfa.gnss_noise's constants (GN_*), NVALS, COS_MAX_ROLL and the GNSS update's GPS_IEKF_* (sfa.kernels); floats
     written with repr: the same doubles."""
     from sfa import layout
     from sfa.batch import NV
@@ -77,9 +77,11 @@ def layout_header() -> str:
     for name in ("LAG_TOL_S", "MIN_NORMAL_DOT", "MIN_PAIR_DISTANCE_M", "CLIP_SIGMA", "FLOOR_GM",
                  "FLOOR_WHITE", "CEILING", "TAU_MIN_S", "TAU_MAX_S", "TAU_N"):
         lines.append(f"#define GN_{name} {getattr(gnss_noise, name)!r}")
-    from sfa.kernels import COS_MAX_ROLL
+    from sfa.kernels import COS_MAX_ROLL, GPS_IEKF_ITERATIONS, GPS_IEKF_TOL_M
 
-    lines += [f"#define NVALS {NV}", f"#define COS_MAX_ROLL {COS_MAX_ROLL!r}", "#endif", ""]
+    lines += [f"#define NVALS {NV}", f"#define COS_MAX_ROLL {COS_MAX_ROLL!r}",
+              f"#define GPS_IEKF_ITERATIONS {GPS_IEKF_ITERATIONS}", f"#define GPS_IEKF_TOL_M {GPS_IEKF_TOL_M!r}",
+              "#endif", ""]
     return "\n".join(lines)
 
 

@@ -948,6 +948,7 @@ static long step_odo(double *x, double *P, double *aux, long *cnt, double *mem, 
             aux[A_SLIP] = 1.0;
             aux[A_SLIP_T0] = t;
             aux[A_SLIP_LLR] = 0.0;
+            aux[A_GPS_HOLD] = -INFINITY;
             cnt[C_SLIP] += 1;
             double s_odo = x[S];
             rewind_imu_only(x, P, aux, cnt, cfg, ts, tg, nv, mem, 0.0);
@@ -1029,21 +1030,6 @@ static long step_gps(double *x, double *P, double *aux, long *cnt, const double 
         PIJ(P, GN, GN) = gm * gm;
     }
     check_timeouts(aux, cnt, cfg, t > aux[A_T_STATE] ? t : aux[A_T_STATE]);
-    /* gps_model */
-    double s_eval = x[S] - x[V] * dl, e, n, de, dn;
-    geom_at(ts, te, tn, nv, s_eval, &e, &n, &de, &dn);
-    double H[2 * NX] = {0}, R[4] = {0}, y[2];
-    H[S] = de;
-    H[NX + S] = dn;
-    H[V] = -dl * de;
-    H[NX + V] = -dl * dn;
-    H[GE] = 1.0;
-    H[NX + GN] = 1.0;
-    double he = e + x[GE], hn = n + x[GN];
-    y[0] = east - he;
-    y[1] = north - hn;
-    double tnorm = sqrt(de * de + dn * dn);
-    double ue = de / tnorm, un = dn / tnorm;
     if (cfg[K_AD_WINDOW] > 0.0) { /* the fix's distance from the line into the GNSS statistics */
         double n_e, n_n, s_foot;
         double c_x = cross_track(ts, te, tn, nv, x[S] - x[V] * dl, east, north, &n_e, &n_n, &s_foot);
@@ -1051,26 +1037,51 @@ static long step_gps(double *x, double *P, double *aux, long *cnt, const double 
     }
     double sw = gn_white_sigma(aux, sigma_h);
     double sl2 = sq(cfg[K_TRACK_LAT]);
-    R[0] = sw * sw + sl2 * un * un;
-    R[3] = sw * sw + sl2 * ue * ue;
-    R[1] = -sl2 * ue * un;
-    R[2] = R[1];
-    if (dl > 0.0) {
-        double qa = cfg[K_Q_ACC] * dl * dl * dl / 3.0;
-        R[0] += qa * ue * ue;
-        R[3] += qa * un * un;
-        R[1] += qa * ue * un;
-        R[2] += qa * ue * un;
-    }
+    /* iterated EKF in the arc length: gps_model linearised at s_lin, Gauss-Newton steps from x[S] */
+    double e, n, de = 0.0, dn = 0.0, ue = 0.0, un = 0.0;
+    double H[2 * NX] = {0}, R[4] = {0}, y[2];
     Innov2 in;
-    innovation2(P, aux, H, R, y, &in);
+    double s_lin = x[S];
+    for (int it = 0; it <= GPS_IEKF_ITERATIONS; it++) {
+        double s_eval = s_lin - x[V] * dl;
+        geom_at(ts, te, tn, nv, s_eval, &e, &n, &de, &dn);
+        H[S] = de;
+        H[NX + S] = dn;
+        H[V] = -dl * de;
+        H[NX + V] = -dl * dn;
+        H[GE] = 1.0;
+        H[NX + GN] = 1.0;
+        double he = e + x[GE], hn = n + x[GN];
+        y[0] = east - he - de * (x[S] - s_lin);
+        y[1] = north - hn - dn * (x[S] - s_lin);
+        double tnorm = sqrt(de * de + dn * dn);
+        ue = de / tnorm;
+        un = dn / tnorm;
+        /* gps_noise_matrix */
+        R[0] = sw * sw + sl2 * un * un;
+        R[3] = sw * sw + sl2 * ue * ue;
+        R[1] = -sl2 * ue * un;
+        R[2] = R[1];
+        if (dl > 0.0) {
+            double qa = cfg[K_Q_ACC] * dl * dl * dl / 3.0;
+            R[0] += qa * ue * ue;
+            R[3] += qa * un * un;
+            R[1] += qa * ue * un;
+            R[2] += qa * ue * un;
+        }
+        innovation2(P, aux, H, R, y, &in);
+        if (it == GPS_IEKF_ITERATIONS)
+            break;
+        double w0 = in.si00 * y[0] + in.si01 * y[1];
+        double w1 = in.si01 * y[0] + in.si11 * y[1];
+        double s_next = x[S] + aux[A_WK_PHT + S] * w0 + aux[A_WK_PHT + NX + S] * w1;
+        if (fabs(s_next - s_lin) < GPS_IEKF_TOL_M)
+            break;
+        s_lin = s_next;
+    }
     aux[A_LAST_NIS_GPS] = in.nis;
     double along = y[0] * ue + y[1] * un;
-    if (t < aux[A_GPS_HOLD]) {
-        cnt[C_GPS_HELD] += 1;
-        return O_HELD_OFF;
-    }
-    if (aux[A_SLIP] != 0.0 && aux[A_SLIP_LLR] > -cfg[K_SLIP_ARB_LLR]) {
+    if (aux[A_SLIP] != 0.0 && (aux[A_SLIP_LLR] > -cfg[K_SLIP_ARB_LLR] || in.nis > cfg[K_GATE_GPS])) {
         double ds = aux[A_SLIP_DS];
         double y0 = y[0] - de * ds, y1 = y[1] - dn * ds;
         double nis_odo = y0 * (in.si00 * y0 + in.si01 * y1) + y1 * (in.si01 * y0 + in.si11 * y1);
@@ -1082,6 +1093,10 @@ static long step_gps(double *x, double *P, double *aux, long *cnt, const double 
             aux[A_SLIP_LLR] = -cfg[K_SLIP_ARB_LLR] > llr ? -cfg[K_SLIP_ARB_LLR] : llr;
             aux[A_T_GPS] = t;
         }
+        cnt[C_GPS_HELD] += 1;
+        return O_HELD_OFF;
+    }
+    if (t < aux[A_GPS_HOLD]) {
         cnt[C_GPS_HELD] += 1;
         return O_HELD_OFF;
     }
@@ -1123,7 +1138,19 @@ static long step_gps(double *x, double *P, double *aux, long *cnt, const double 
     double s_along = ue * (in.s00 * ue + in.s01 * un) + un * (in.s01 * ue + in.s11 * un);
     double r = along / sqrt(s_along);
     double kk = cfg[K_CUSUM_K];
-    double cp = aux[A_CUSUM_P] + r - kk, cn = aux[A_CUSUM_N] - r - kk;
+    double wt = 1.0;
+    if (cfg[K_CUSUM_DT] > 0.0) {
+        double gap = t - aux[A_T_GPS];
+        gap = gap > 0.0 ? gap : 0.0; /* Python's max(gap, 0.0) */
+        double f = gap / cfg[K_CUSUM_DT];
+        wt = f < 1.0 ? f : 1.0; /* min(1.0, f) */
+    }
+    if (aux[A_SLIP] != 0.0) {
+        wt = 0.0;
+        aux[A_CUSUM_P] = 0.0;
+        aux[A_CUSUM_N] = 0.0;
+    }
+    double cp = aux[A_CUSUM_P] + wt * (r - kk), cn = aux[A_CUSUM_N] + wt * (-r - kk);
     aux[A_CUSUM_P] = cp > 0.0 ? cp : 0.0;
     aux[A_CUSUM_N] = cn > 0.0 ? cn : 0.0;
     if (aux[A_CUSUM_P] > cfg[K_CUSUM_H] || aux[A_CUSUM_N] > cfg[K_CUSUM_H]) {
