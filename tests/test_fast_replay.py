@@ -6,6 +6,7 @@ measurement with its epoch, STROBEs and a STOP), replayed by both paths in the s
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import struct
 import subprocess
@@ -17,6 +18,7 @@ from helpers_capture import frame_ethernet, write_capture
 from hypothesis import given
 from hypothesis import strategies as st
 
+from interface_modules.offline import generate
 from interface_modules.scenario import load_scenario
 from interface_modules.tracks import database_path
 from listener.codec import (
@@ -29,6 +31,7 @@ from listener.codec import (
     input_layout,
 )
 from listener.config import (
+    ClockConfig,
     FilterSelection,
     ListenerConfig,
     MergeConfig,
@@ -83,6 +86,23 @@ def tram(tmp_path_factory):
     track.close()
 
 
+@pytest.fixture(scope="module")
+def strobe_dated(tmp_path_factory):
+    """60 s of the E1 regional line with every sensor's epoch left out (the thesis's sensors' form):
+    the listener dates each measurement with the STROBE clock at its arrival."""
+    d = tmp_path_factory.mktemp("strobe")
+    sc = dataclasses.replace(load_scenario("regional-long"), max_duration_s=60.0)
+    sc = sc.with_overrides(**{m: dataclasses.replace(getattr(sc, m), send_epoch=False)
+                              for m in ("imu", "odometer", "gps")})  # fmt: skip
+    run = generate(sc)
+    dgrams = [(float(p.arrival_s), ("127.0.0.1", int(p.src_port)), bytes(p.payload)) for p in run.packets]
+    write_capture(d / "capture.pcap", dgrams)
+    track = TrackDatabase.open(database_path(sc))
+    sel = FilterSelection(imu=sc.imu.preset, odometer=sc.odometer.preset, gps=sc.gps.preset)
+    yield {"cap": d / "capture.pcap", "dgrams": dgrams, "track": track, "sel": sel}
+    track.close()
+
+
 def assert_same(exact, fast) -> None:
     """New estimates, per-measurement updates, GNSS rows and counters identical, bit for bit."""
     a, b = exact.new_estimates(), fast.new_estimates()
@@ -128,6 +148,42 @@ def test_fast_equals_exact_through_junctions_and_stops(tram):
     assert info.compiled > 0.5 * fast.datagrams  # and most of the capture still ran compiled
     assert fr["compiled_fraction"] == pytest.approx(info.compiled / fast.datagrams)
     assert fast.metrics["filter"]["counters"]["initialisations"] >= 1
+
+
+def test_strobe_dated_measurements_take_the_compiled_path(strobe_dated):
+    """No epoch in any IMU, odometer or GNSS datagram: each is dated by the STROBE clock at its arrival
+    (listener.pipeline's _date), in compiled code after the hand-over; bit-identical to the exact replay."""
+    opts = ReplayOptions(config=ListenerConfig(filter=strobe_dated["sel"]))
+    exact = replay_capture(strobe_dated["cap"], strobe_dated["track"], opts)
+    fast, info = try_fast_replay(strobe_dated["cap"], strobe_dated["track"], opts)
+    assert info.used, info.reason
+    assert fast is not None
+    assert info.compiled > 0.99 * fast.datagrams
+    counted = exact.metrics["input"]
+    assert counted["dated_by_strobe"] > 7000 and counted["dated_by_epoch"] == 1  # the GROUND TRUTH's
+    assert_same(exact, fast)
+
+
+@pytest.mark.parametrize("max_undated", [512, 40])
+def test_undated_queue_before_the_first_strobe(strobe_dated, tmp_path, max_undated):
+    """The first STROBEs lost at the start: the measurements before the first STROBE wait in the
+    listener's undated queue (at most clock.max_pending_undated, the oldest dropped beyond) and are
+    dated when it comes. That start runs through the exact pipeline, the rest compiled; identical."""
+    dgrams = list(strobe_dated["dgrams"])
+    t0 = dgrams[0][0]
+    late = [d for d in dgrams if not (d[2][0] == 9 and d[0] - t0 < 2.5)]
+    cap = tmp_path / "late-strobe.pcap"
+    write_capture(cap, _resequence(late))  # a STROBE module that starts late, not lost datagrams
+    cfg = ListenerConfig(filter=strobe_dated["sel"], clock=ClockConfig(max_pending_undated=max_undated))
+    opts = ReplayOptions(config=cfg)
+    exact = replay_capture(cap, strobe_dated["track"], opts)
+    fast, info = try_fast_replay(cap, strobe_dated["track"], opts)
+    assert info.used, info.reason
+    first_strobe = next(i for i, d in enumerate(late) if d[2][0] == 9)
+    assert first_strobe > 200 and info.exact_prefix == first_strobe + 1
+    overflow = exact.metrics["input"]["undated_overflow"]
+    assert (overflow > 0) == (max_undated < first_strobe)
+    assert_same(exact, fast)
 
 
 def _resequence(dgrams):

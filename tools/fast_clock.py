@@ -222,9 +222,12 @@ def run_clock(
     (datagram ``m_row``, arrival ``m_time``, epoch ``t_s``) of one capture stretch, in datagram order.
 
     Per measurement, with the clock as the STROBEs before it left it (``StrobeClock.to_sensor_time`` of its
-    arrival: sensor_now; NaN before any STROBE): ``future[j]``: the listener rejects it as epoch_future
-    (t_s > sensor_now + max_future); ``fresh_min[j]``: sensor_now - stale_before (estimates with an older
-    epoch are stale, not sent). Every STROBE is applied (those after the last measurement too).
+    arrival: sensor_now; NaN before any STROBE): a measurement without its epoch (``t_s[j]`` NaN) is
+    dated ``t_s[j] = sensor_now`` (``Pipeline._date``: the STROBE clock at arrival; the caller makes sure
+    the clock has a STROBE by then, else the listener would queue it undated); ``future[j]``: the
+    listener rejects a carried epoch as epoch_future (t_s > sensor_now + max_future); ``fresh_min[j]``:
+    sensor_now - stale_before (estimates with an older epoch are stale, not sent). Every STROBE is
+    applied (those after the last measurement too).
     Returns the number of future epochs."""
     n = int(st[C_N])
     si = 0
@@ -240,10 +243,14 @@ def run_clock(
             sn = now + (st[C_INTERCEPT] + st[C_SLOPE] * (now - st[C_REF]))  # as sensor_now
         else:
             sn = math.nan
-        fut = t_s[j] > sn + max_future
-        future[j] = fut
-        if fut:
-            n_future += 1
+        if math.isnan(t_s[j]):  # no epoch: dated by the clock at its arrival (Pipeline._date), never future
+            t_s[j] = sn
+            future[j] = False
+        else:
+            fut = t_s[j] > sn + max_future
+            future[j] = fut
+            if fut:
+                n_future += 1
         fresh_min[j] = sn - stale_before
     while si < n_s:
         n = _on_strobe(s_ts[si], s_time[si], n, window, prm, st, smp_t, smp_o, hx, hy)

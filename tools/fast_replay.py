@@ -2,9 +2,9 @@
 
 ``tools.replay.replay_capture`` drives the listener's pipeline object per datagram (a few thousand
 datagrams per second). On a clean capture almost all of that work is bookkeeping whose outcome is
-known in advance: every stream in order, every measurement dated by its own epoch, the merge
-releasing each measurement at once (``merge.hold_s = 0``). :func:`fast_replay` checks that this is so
-and then runs the capture in compiled code:
+known in advance: every stream in order, every measurement dated by its own epoch or by the STROBE
+clock at its arrival, the merge releasing each measurement at once (``merge.hold_s = 0``).
+:func:`fast_replay` checks that this is so and then runs the capture in compiled code:
 
 1. one compiled pass over the memory-mapped pcap (:mod:`tools.fast_ingest`; classic pcap, Ethernet,
    IPv4, UDP at fixed offsets) walks the records, decodes every INPUT payload against listener.codec's
@@ -13,10 +13,12 @@ and then runs the capture in compiled code:
    rejected datagrams get their reason from ``listener.codec`` itself,
 2. the start of the capture goes through the exact pipeline, datagram by datagram, only until every
    sender's stream has started and nothing is held (a handful of datagrams),
-3. the rest is checked (each stream continues in sequence, no gap, no reordering, epochs present: the
-   ingest pass's notes), and one compiled pass advances the STROBE clock and dates the measurements
-   against it (:func:`tools.fast_clock.run_clock`: the sensor-set "now" of every arrival, for the
-   listener's ``epoch_future`` and stale-output rules),
+3. the rest is checked (each stream continues in sequence, no gap, no reordering: the ingest pass's
+   notes), and one compiled pass advances the STROBE clock and dates the measurements against it
+   (:func:`tools.fast_clock.run_clock`: the sensor-set "now" of every arrival, which dates a
+   measurement without its epoch, and the listener's ``epoch_future`` and stale-output rules; a
+   start with measurements before the first STROBE goes through the exact pipeline up to that
+   STROBE, which empties the listener's undated queue),
 4. GNSS fixes go to the track's frame; rejected measurements are dropped from the packed rows,
 5. the filter runs from the exact pipeline's filter object: compiled (:func:`tools.fast_loop.run_segment`:
    the kernels plus TrackFilter's scoring, pruning and standstill reversal hypotheses) while every
@@ -454,7 +456,6 @@ def _replay_ingested(got, track, options, ingest_s: float = 0.0):
         R_FRAMES,
         R_LAST_BREAK,
         R_LAST_FIRST,
-        R_NO_EPOCH,
         R_STOP_FRAME,
         R_STOPPED,
         R_STREAMS,
@@ -478,6 +479,14 @@ def _replay_ingested(got, track, options, ingest_s: float = 0.0):
         return None, _info(False, "more streams than the listener tracks", 0)
     # the exact pipeline runs until every stream has started (start-up hold released)
     min_prefix = int(res[R_LAST_FIRST]) + 1
+    # a measurement without its epoch before the first STROBE waits in the listener's undated queue
+    # (Pipeline._date, clock.max_pending_undated) until that STROBE dates it: such a start goes through
+    # the exact pipeline up to and including the first STROBE (after it the clock always has one)
+    undated = np.isnan(got.t_s)
+    first_undated = int(got.m_row[int(np.argmax(undated))]) if undated.any() else n
+    first_strobe = int(got.s_row[0]) if got.s_row.size else n
+    if first_undated < first_strobe:
+        min_prefix = max(min_prefix, first_strobe + 1)
 
     # 1. exact prefix
     prefix = _Prefix(track, options)
@@ -507,9 +516,15 @@ def _replay_ingested(got, track, options, ingest_s: float = 0.0):
 
     # 2. the rest must be a continuation the pipeline releases at once, in order (the ingest pass noted
     # the last datagram breaking each rule)
-    for t in (1, 2, 3, 8):
-        if res[R_NO_EPOCH + t] >= h:
-            return None, _info(False, f"{_TYPE_NAME[t]} datagrams without epoch (need STROBE dating)", h)
+    j0 = int(np.searchsorted(got.m_row, h))
+    s0 = int(np.searchsorted(got.s_row, h))
+    if not pipe.clock.synced and undated[j0:].any():
+        # the clock has no STROBE yet (the prefix's were rejected by the sender table, or come later):
+        # a measurement without epoch before the next STROBE would wait in the undated queue
+        nxt_strobe = int(got.s_row[s0]) if s0 < got.s_row.size else n
+        if int(got.m_row[j0 + int(np.argmax(undated[j0:]))]) < nxt_strobe:
+            why = "measurements without epoch before any STROBE dates them (the undated queue)"
+            return None, _info(False, why, h)
     if res[R_LAST_BREAK] >= h:
         why = "a stream with a gap, a duplicate or reordering (needs the sequence buffer)"
         return None, _info(False, why, h)
@@ -518,9 +533,7 @@ def _replay_ingested(got, track, options, ingest_s: float = 0.0):
         return None, _info(False, why, h)
     if not clock_supported():
         return None, _info(False, "Python >= 3.12 sums floats compensated (STROBE clock fit)", h)
-    j0 = int(np.searchsorted(got.m_row, h))
     g0 = int(np.searchsorted(got.g_row, h))
-    s0 = int(np.searchsorted(got.s_row, h))
     mrows, m_time, kind, t_s, vals = (a[j0:] for a in (got.m_row, got.m_time, got.kind, got.t_s, got.vals))
     lap("checks")
 
@@ -528,6 +541,7 @@ def _replay_ingested(got, track, options, ingest_s: float = 0.0):
     # the stale-output bound)
     cfg = options.config
     stale_before = cfg.link.max_output_age_s + cfg.merge.hold_s
+    n_by_strobe = int(np.count_nonzero(undated[j0:]))  # run_clock dates them in t_s (never epoch_future)
     fresh_min, future, n_future = replay_clock(
         pipe.clock,
         (got.s_row[s0:], got.s_ts[s0:], got.s_time[s0:]),
@@ -576,7 +590,7 @@ def _replay_ingested(got, track, options, ingest_s: float = 0.0):
             break
         i = j
         msg = decode_input(got.datagram(int(mrows[i]))[2])
-        upd = filt.process(to_measurement(msg, msg.epoch))
+        upd = filt.process(to_measurement(msg, float(t_s[i])))  # its epoch, or as the clock dated it
         state.python_row(i, upd, fresh_min[i])
         i += 1
     lap("filter")
@@ -669,7 +683,10 @@ def _replay_ingested(got, track, options, ingest_s: float = 0.0):
     for t in np.flatnonzero(types).tolist():
         pipe.by_type[_TYPE_NAME.get(t, str(t))] += int(types[t])
     c["strobes"] += int(types[9])
-    c["dated_by_epoch"] += nm
+    if nm - n_by_strobe:
+        c["dated_by_epoch"] += nm - n_by_strobe
+    if n_by_strobe:
+        c["dated_by_strobe"] += n_by_strobe
     c["processed"] += nm
     if ost[O_STALE]:
         c["stale_not_sent"] += int(ost[O_STALE])
