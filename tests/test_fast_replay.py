@@ -12,6 +12,7 @@ import struct
 import subprocess
 import sys
 
+import dpkt
 import numpy as np
 import pytest
 from helpers_capture import frame_ethernet, write_capture
@@ -404,11 +405,81 @@ def test_falls_back_when_the_capture_needs_the_sequence_buffer(sim, tmp_path):
     assert "reordering" in info.reason
 
 
+#: capture forms other tools write (tests/helpers_capture.write_capture options)
+FORMS = {
+    "pcapng": {"pcapng": True},
+    "nanosecond": {"nano": True},
+    "big-endian nanosecond": {"big_endian": True, "nano": True},
+    "802.1Q VLAN": {"vlan": [(0x8100, 5)]},
+    "802.1ad QinQ": {"vlan": [(0x88A8, 7), (0x8100, 5)]},
+    "IPv6": {"ipv6": True},
+    "pcapng VLAN IPv6": {"pcapng": True, "vlan": [(0x8100, 3)], "ipv6": True},
+}
+
+
+@pytest.mark.parametrize("form", list(FORMS))
+def test_capture_forms_take_the_compiled_path(sim, tmp_path, form):
+    """pcapng, nanosecond and big-endian pcap, VLAN tags and IPv6 frames are read by the compiled walk as
+    the exact replay's dpkt reader reads them (timestamps to the bit, IPv6 source addresses, frames to
+    other ports skipped and counted alike): the replay is identical to the exact one."""
+    dgrams = sim["dgrams"][:3000]
+    other = frame_ethernet(("127.0.0.1", 5353), 5353, b"mdns", vlan=FORMS[form].get("vlan", ()),
+                           ipv6=FORMS[form].get("ipv6", False))  # fmt: skip
+    cap = tmp_path / "capture.cap"
+    write_capture(cap, dgrams, extra=[(dgrams[700][0] + 1e-7, other)], **FORMS[form])
+    exact = replay_capture(cap, sim["track"], ReplayOptions())
+    fast, info = try_fast_replay(cap, sim["track"], ReplayOptions())
+    assert info.used, info.reason
+    assert info.compiled > 0.9 * fast.datagrams
+    assert exact.capture["skipped"] == {"other_port": 1}
+    if FORMS[form].get("ipv6"):  # the senders bound (trust on first use) by their IPv6 addresses
+        assert all("fd00::" in str(v) for v in fast.metrics["senders"]["bindings"].values())
+    assert_same(exact, fast)
+
+
+def test_strobe_dated_pcapng_with_vlan(strobe_dated, tmp_path):
+    """The thesis's form (no epochs) in a pcapng of VLAN-tagged frames: compiled, identical."""
+    cap = tmp_path / "strobe.pcapng"
+    write_capture(cap, strobe_dated["dgrams"], pcapng=True, vlan=[(0x8100, 12)])
+    opts = ReplayOptions(config=ListenerConfig(filter=strobe_dated["sel"]))
+    exact = replay_capture(cap, strobe_dated["track"], opts)
+    fast, info = try_fast_replay(cap, strobe_dated["track"], opts)
+    assert info.used, info.reason
+    assert exact.metrics["input"]["dated_by_strobe"] > 7000
+    assert_same(exact, fast)
+
+
+@given(sec=st.integers(0, 2**32 - 1), nsec=st.integers(0, 2**32 - 1))
+def test_nanosecond_timestamps_as_dpkt(sec, nsec):
+    """dpkt reads a nanosecond pcap's timestamp as sec + Decimal(nsec) / Decimal("1E9") and the exact
+    replay takes float() of it: the compiled walk's integer rounding gives the same double (NaN only
+    below 1 s, which it refuses)."""
+    from decimal import Decimal
+
+    from tools.fast_ingest import nano_timestamp
+
+    want = float(sec + Decimal(nsec) / Decimal("1E9"))
+    got = nano_timestamp(sec, nsec)
+    if want < 1.0:
+        assert math.isnan(got)
+    else:
+        assert got == want
+
+
 def test_falls_back_for_other_files_and_options(sim, tmp_path):
-    ng = tmp_path / "capture.pcapng"
-    write_capture(ng, sim["dgrams"][:200], pcapng=True)
-    result, info = try_fast_replay(ng, sim["track"], ReplayOptions())
-    assert result is None and "classic pcap" in info.reason
+    raw_ip = tmp_path / "raw.pcap"
+    with open(raw_ip, "wb") as fh:  # link type raw IP (tcpdump on a tunnel): the exact reader reads it
+        w = dpkt.pcap.Writer(fh, linktype=dpkt.pcap.DLT_RAW)
+        for t, _, p in sim["dgrams"][:50]:
+            w.writepkt(frame_ethernet(("127.0.0.1", 40000), 48000, p)[14:], ts=t)
+    result, info = try_fast_replay(raw_ip, sim["track"], ReplayOptions())
+    assert result is None and f"link type {dpkt.pcap.DLT_RAW}" in info.reason
+    hop = tmp_path / "hop-by-hop.pcap"  # an IPv6 extension header (dpkt.ip6.EXT_HDRS)
+    frame = bytearray(frame_ethernet(("127.0.0.1", 40000), 48000, sim["dgrams"][3][2], ipv6=True))
+    frame[14 + 6] = 0  # next header: hop-by-hop options
+    write_capture(hop, sim["dgrams"][:20], extra=[(sim["dgrams"][5][0] + 1e-7, bytes(frame))])
+    result, info = try_fast_replay(hop, sim["track"], ReplayOptions())
+    assert result is None and "extension headers" in info.reason
     held = ReplayOptions(config=ListenerConfig(merge=MergeConfig(hold_s=0.1)))
     result, info = try_fast_replay(sim["cap"], sim["track"], held)
     assert result is None and "hold_s" in info.reason
