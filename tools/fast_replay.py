@@ -40,6 +40,7 @@ tests/test_fast_replay.py checks field by field, on a capture with junctions too
 
 from __future__ import annotations
 
+import copy
 import math
 import sys
 import time
@@ -51,7 +52,7 @@ from numba import njit
 
 from listener.pipeline import to_measurement
 from sfa import layout as L
-from sfa.layout import Outcome
+from sfa.layout import FilterStatus, Outcome
 from tools.fast_loop import (
     NOST,
     O_BITS,
@@ -283,6 +284,7 @@ class _Prefix:
         self.est_rows: list[tuple] = []
         self.upd: list[tuple] = []
         self.gps_rows: list[tuple] = []
+        self.reason_rows: list[int] = []  # reason bits of each output row (tools.replay's reasons)
         self.by_seq: dict = {}  # SEQ -> the estimate last encoded with it
         self.fresh: deque[int] = deque()  # SEQs encoded as new estimates, not yet seen in an output
         self.pipe.on_output = self._on_output
@@ -296,6 +298,7 @@ class _Prefix:
 
     def record(self, outputs, now) -> None:
         from listener.codec import decode_output
+        from tools.estimates_schema import reason_bits
         from tools.replay import estimate_row
 
         for payload in outputs:
@@ -308,6 +311,7 @@ class _Prefix:
             else:
                 retransmit = 1
             self.est_rows.append(estimate_row(msg, est, retransmit, now))
+            self.reason_rows.append(reason_bits(est.reasons))
 
     def feed(self, t, addr, payload, gps) -> None:
         pipe = self.pipe
@@ -542,6 +546,7 @@ def _replay_ingested(got, track, options, ingest_s: float = 0.0):
     cfg = options.config
     stale_before = cfg.link.max_output_age_s + cfg.merge.hold_s
     n_by_strobe = int(np.count_nonzero(undated[j0:]))  # run_clock dates them in t_s (never epoch_future)
+    clock0 = copy.deepcopy(pipe.clock)  # the clock at the hand-over (for _end_gap)
     fresh_min, future, n_future = replay_clock(
         pipe.clock,
         (got.s_row[s0:], got.s_ts[s0:], got.s_time[s0:]),
@@ -604,7 +609,7 @@ def _replay_ingested(got, track, options, ingest_s: float = 0.0):
         "epoch": e_f[0, :rows],
         "arc_length": e_f[1, :rows],
         "seq": e_i[0, :rows],
-        "retransmit": np.zeros(rows, dtype=np.int64),  # no retransmission after the prefix
+        "retransmit": np.zeros(rows, dtype=np.int64),  # the retransmissions are inserted below
         "arrival": e_f[2, :rows],
         "speed": e_f[3, :rows],
         "sigma": e_f[4, :rows],
@@ -661,6 +666,22 @@ def _replay_ingested(got, track, options, ingest_s: float = 0.0):
             ]
         ),
     }
+    reasons = e_i[3, :rows].copy()
+    reasons[:he] = prefix.reason_rows
+    retx = _retransmissions(prefix.est_rows, est["arrival"][he:], float(got.row_t[n - 1]), cfg.link)
+    retx, why = _end_gap(retx, k_out, got, pipe, clock0, (got.s_ts[s0:], got.s_time[s0:]), cfg)
+    if why:
+        return None, _info(False, why, h)
+    if retx.size:  # after row he + after[k]: a resend of that row's estimate at times[k]
+        after, times = retx[:, 0].astype(np.int64) + he, retx[:, 1]
+        at = after + 1
+        est = {k: np.insert(v, at, v[after]) for k, v in est.items()}
+        est["retransmit"][at + np.arange(at.size)] = 1
+        est["arrival"][at + np.arange(at.size)] = times
+        reasons = np.insert(reasons, at, reasons[after])
+        bits = np.insert(e_i[3, :rows], at, e_i[3, after])
+    else:
+        bits = e_i[3, :rows]
     lap("result columns")
 
     # 6. counters: the pipeline's own objects advanced as the exact replay would have advanced them
@@ -704,6 +725,7 @@ def _replay_ingested(got, track, options, ingest_s: float = 0.0):
     for k in ("received", "released", "in_order"):
         seqm[k] += n_valid
     metrics["link"]["outputs"] += k_out
+    metrics["link"]["retransmits"] += int(retx.shape[0])
     compiled = (n - h) - state.python_steps
     metrics["fast_replay"] = {
         "exact_prefix_datagrams": h,
@@ -712,8 +734,8 @@ def _replay_ingested(got, track, options, ingest_s: float = 0.0):
         "handed_back_at_junctions": state.branched,
         "undone_for_scores": state.undone,
         "compiled_fraction": compiled / n,
-        "retransmissions_simulated": "exact prefix only",
-        "reason_bits": e_i[3, :rows],  # taken out again by try_fast_replay (vital_reason)
+        "retransmissions_added": int(retx.shape[0]),
+        "reason_bits": bits,  # taken out again by try_fast_replay (vital_reason; the prefix's rows -1)
     }
     last_frame = int(res[R_STOP_FRAME]) if stopped else int(res[R_FRAMES])
     skipped = Counter()
@@ -728,6 +750,7 @@ def _replay_ingested(got, track, options, ingest_s: float = 0.0):
         metrics=metrics,
         datagrams=n,
         skipped_sensor=0,
+        reasons=reasons,
     )
     result.capture = {  # the fast scan refuses a truncated file (the exact reader counts and warns)
         "frames": last_frame, "datagrams": n, "skipped": dict(skipped),
@@ -735,6 +758,127 @@ def _replay_ingested(got, track, options, ingest_s: float = 0.0):
     }  # fmt: skip
     lap("counters")
     return result, _info(True, "", h, compiled, state.python_steps, timing)
+
+
+def _end_gap(retx: np.ndarray, k_out: int, got, pipe, clock0, strobes, cfg):
+    """The resends of the last estimate sent, after the last measurement (the end of the capture), with
+    the vital supervision on: (the resend rows kept, "") or (, why the exact replay is needed).
+
+    After the last measurement the listener's timer runs at each module's time-out
+    (``Pipeline._supervision_deadline``: its last datagram + its time-out / clock.rate + the margin),
+    and again every ``_RECHECK_STEP_S`` for up to ``_RECHECK_FOR_S`` while the filter does not show that
+    time-out yet; it evaluates the filter's estimate propagated to the sensor time of ``now`` and
+    withholds the standard output, the newest estimate's resends included, once that is LOST
+    (``Pipeline._supervise``). Here the filter (its final state: no measurement comes later) is asked
+    the same question at each time-out, on the STROBE clock as it stood then, and at the end of its
+    re-check window where re-checks run (a status that only worsens as the propagation goes on, as the
+    time-outs and the growing sigma make it): a resend before the first LOST is sent, one after the
+    time-out that saw it is not (the same float expressions as the pipeline's timers: a resend due at
+    that time-out comes after it); a resend after a re-check window that ends LOST (the re-checks may
+    have stopped before) or the strict output modes are left to the exact replay."""
+    from listener.pipeline import _RECHECK_FOR_S, _RECHECK_STEP_S, _TIMEOUT_REASON
+    from tools.fast_clock import replay_strobes
+
+    if not cfg.vital.enabled or retx.shape[0] == 0:
+        return retx, ""
+    end = retx[:, 0] == k_out - 1
+    if not end.any():
+        return retx, ""
+    times = retx[end, 1]
+    why = "vital supervision: the link's resends of the last estimate after a module's time-out"
+    if cfg.vital.standard_output == "nominal" or cfg.link.extended:
+        return retx, why
+    fc = pipe.filter.config
+    timeout = {1: fc.imu_timeout_s, 2: fc.odo_timeout_s, 3: fc.gps_timeout_s}
+    reason = {1: _TIMEOUT_REASON["imu"], 2: _TIMEOUT_REASON["odometer"], 3: _TIMEOUT_REASON["gnss"]}
+    last_meas = float(got.m_time.max())
+    due = sorted(
+        (float(got.m_time[got.kind == k].max()) + timeout[k] / cfg.clock.rate + cfg.vital.timeout_margin_s, k)
+        for k in (1, 2, 3) if np.any(got.kind == k)
+    )  # fmt: skip
+    due = [(d, k) for d, k in due if d > last_meas]  # (earlier ones ran during the capture)
+    done = 0  # STROBEs applied to clock0
+
+    def status_at(now: float):
+        nonlocal done
+        upto = int(np.searchsorted(strobes[1], now, side="left"))  # the STROBEs received before now
+        if upto > done:
+            replay_strobes(clock0, strobes[0][done:upto], strobes[1][done:upto])
+            done = upto
+        t = clock0.to_sensor_time(now)
+        return None if t is None else pipe.filter.estimate(at_s=t, propagate=True)
+
+    sent_before = math.inf  # resends before this time are sent (no LOST seen by then)
+    withheld_after = math.inf  # and from this time on withheld
+    for d, k in due:
+        if d > times[-1]:
+            break
+        est = status_at(d)
+        if est is None:
+            return retx, why
+        if est.status == FilterStatus.LOST:
+            withheld_after = d
+            sent_before = min(sent_before, d)
+            break
+        if reason[k] not in est.reasons:  # re-checks follow: LOST may come at any of them
+            window_end = d + _RECHECK_FOR_S + _RECHECK_STEP_S
+            late = status_at(window_end)
+            if late is None or late.status == FilterStatus.LOST:  # (re-checks may stop before it)
+                sent_before = min(sent_before, d)
+                break
+    # (the times are the pipeline's own float expressions: a time-out due with a resend runs first)
+    kept = times < sent_before
+    if not np.all(kept | (times >= withheld_after)):
+        return retx, why
+    return retx[~end | (retx[:, 1] < sent_before)], ""
+
+
+def _retransmissions(prefix_rows, created: np.ndarray, t_end: float, link) -> np.ndarray:
+    """The OBCU link's retransmissions after the exact prefix, as listener.obcu_link sends them in the
+    exact replay: (k, time) rows, a resend of the k-th new estimate after the prefix (-1: the prefix's
+    newest) at that time.
+
+    In a replay nothing is ever acked and (``link.max_rate_hz = 0``) every new estimate is sent when it
+    is made (``created``: its arrival column). The newest sent estimate is resent by the link's timer at
+    ``last_sent + retransmit_interval_s``, at most ``max_retransmits`` times and not once it is older than
+    ``max_output_age_s``; the replay fires that timer when it is due at or before the next datagram, so
+    before the next new estimate (made at its datagram's arrival), and the final flush at the last
+    datagram (the STOP, or the end of the capture) runs the same check once more at that time."""
+    interval = float(link.retransmit_interval_s)
+    most = int(link.max_retransmits)
+    age = float(link.max_output_age_s)
+    out: list[tuple[float, float]] = []
+    if most <= 0:
+        return np.zeros((0, 2))
+    if prefix_rows:  # the prefix's newest: its first send, its resends so far, the last send
+        seq = prefix_rows[-1][2]
+        k0 = len(prefix_rows) - 1
+        while k0 > 0 and prefix_rows[k0][3] == 1 and prefix_rows[k0 - 1][2] == seq:
+            k0 -= 1
+        first = (-1, float(prefix_rows[k0][4]), len(prefix_rows) - 1 - k0, float(prefix_rows[-1][4]))
+    else:
+        first = None
+    times = created.tolist()
+    # the gaps in which a resend can fall: the next estimate (or the end) at least an interval after
+    gaps = np.flatnonzero(np.diff(np.append(created, t_end)) >= interval - 1e-9).tolist()
+    starts = ([first] if first is not None else []) + [(k, times[k], 0, times[k]) for k in gaps]
+    for k, made, resends, last_sent in starts:
+        until = times[k + 1] if k + 1 < len(times) else t_end
+        while resends < most:
+            due = last_sent + interval  # ObcuLink.next_timer; handle_timer(due) finds it due
+            final = due > until  # not before the next datagram: only the final flush may still resend
+            if final:
+                if k + 1 < len(times) or not t_end - last_sent >= interval - 1e-12:
+                    break
+                due = t_end
+            if due - made > age:
+                break
+            out.append((k, due))
+            resends += 1
+            last_sent = due
+            if final:
+                break
+    return np.array(out, dtype=np.float64).reshape(-1, 2)
 
 
 def _info(used: bool, reason: str, prefix: int, compiled: int = 0, python: int = 0, timing=None):
