@@ -443,6 +443,17 @@ FORMS = {
 }
 
 
+#: Ethernet frames without an IP packet, as a NIC capture has them: ARP (and one cut short), LLDP, a
+#: VLAN-tagged ARP, a type-0 frame (dpkt: "unknown type")
+NOT_IP_FRAMES = (
+    b"\xff" * 6 + b"\x02" * 6 + b"\x08\x06" + bytes(28),
+    b"\xff" * 6 + b"\x02" * 6 + b"\x08\x06" + bytes(5),
+    b"\x01\x80\xc2\x00\x00\x0e" + b"\x02" * 6 + b"\x88\xcc" + bytes(20),
+    b"\xff" * 12 + b"\x81\x00\x00\x05\x08\x06" + bytes(28),
+    bytes(14),
+)
+
+
 @pytest.mark.parametrize("form", list(FORMS))
 def test_capture_forms_take_the_compiled_path(sim, tmp_path, form):
     """pcapng, nanosecond and big-endian pcap, VLAN tags and IPv6 frames are read by the compiled walk as
@@ -452,12 +463,13 @@ def test_capture_forms_take_the_compiled_path(sim, tmp_path, form):
     other = frame_ethernet(("127.0.0.1", 5353), 5353, b"mdns", vlan=FORMS[form].get("vlan", ()),
                            ipv6=FORMS[form].get("ipv6", False))  # fmt: skip
     cap = tmp_path / "capture.cap"
-    write_capture(cap, dgrams, extra=[(dgrams[700][0] + 1e-7, other)], **FORMS[form])
+    write_capture(cap, dgrams, extra=[(dgrams[700][0] + 1e-7, f) for f in (other, *NOT_IP_FRAMES)],
+                  **FORMS[form])  # fmt: skip
     exact = replay_capture(cap, sim["track"], ReplayOptions())
     fast, info = try_fast_replay(cap, sim["track"], ReplayOptions())
     assert info.used, info.reason
     assert info.compiled > 0.9 * fast.datagrams
-    assert exact.capture["skipped"] == {"other_port": 1}
+    assert exact.capture["skipped"] == {"other_port": 1, "not_ip": len(NOT_IP_FRAMES)}
     if FORMS[form].get("ipv6"):  # the senders bound (trust on first use) by their IPv6 addresses
         assert all("fd00::" in str(v) for v in fast.metrics["senders"]["bindings"].values())
     assert_same(exact, fast)
@@ -511,9 +523,10 @@ def test_falls_back_for_other_files_and_options(sim, tmp_path):
     assert result is None and "hold_s" in info.reason
     result, info = try_fast_replay(sim["cap"], sim["track"], ReplayOptions(sensors=frozenset({"imu"})))
     assert result is None and "sensor" in info.reason
-    odd = tmp_path / "not-ip.pcap"
-    write_capture(odd, sim["dgrams"][:20], extra=[(sim["dgrams"][5][0] + 1e-7, b"\x00" * 14)])
-    assert "Ethernet/IPv4" in scan_capture(odd, 48000)
+    odd = tmp_path / "stp.pcap"  # an 802.3/LLC frame (spanning tree): dpkt's LLC reading is not followed
+    stp = b"\x01\x80\xc2\x00\x00\x00" + b"\x02" * 6 + b"\x00\x26" + b"\x42\x42\x03" + bytes(35)
+    write_capture(odd, sim["dgrams"][:20], extra=[(sim["dgrams"][5][0] + 1e-7, stp)])
+    assert "802.3/LLC" in scan_capture(odd, 48000)
 
 
 def test_scan_equals_the_dpkt_reader(sim):

@@ -81,6 +81,15 @@ F_NOT_UDP = 2
 F_IP_FRAGMENT = 3
 F_UDP_LENGTH_MISMATCH = 4
 F_NO_FRAME = 5  #: a pcapng block that is not a packet (skipped by dpkt, not a frame)
+F_NOT_IP = 6  #: an Ethernet frame dpkt reads as carrying no IP packet (ARP, LLDP, ...)
+
+# the Ethernet type table (``ethk``, uint8 (2, 65536): row 0 the frame's own type, row 1 the type after
+# its VLAN tags) as dpkt.ethernet reads them
+E_REFUSE = 0  #: a form whose dpkt reading the walk does not follow (802.3/LLC, MPLS, a parsed non-IP type)
+E_NOT_IP = 1  #: no IP packet: dpkt keeps the payload as bytes (a type it does not parse) or ARP
+E_IP4 = 2
+E_IP6 = 3
+E_VLAN = 4  #: a VLAN tag follows (row 0 only)
 
 # why the walk gave up (the exact reader takes over)
 U_OK = 0
@@ -93,7 +102,7 @@ U_BLOCK = 6
 U_TIMESTAMP = 7
 UNSUPPORTED_REASONS = {
     U_TRUNCATED: "truncated record",
-    U_NOT_ETHERNET_IPV4: "frame not Ethernet/IPv4/IPv6",
+    U_NOT_ETHERNET_IPV4: "Ethernet frame the fast path does not read (802.3/LLC, MPLS, cut short)",
     U_IP_HEADER: "IP header not plain (IPv4 options or IPv6 extension headers)",
     U_IP_LENGTH: "IP length disagrees with the frame",
     U_UDP_HEADER: "UDP header cut short",
@@ -216,14 +225,21 @@ def nano_timestamp(sec, nsec):
 
 
 @njit(cache=True, _nrt=False)
-def _frame(d, body, flen, port, ext6):
+def _frame(d, body, flen, port, ethk, ext6):
     """The Ethernet frame d[body:body + flen] as dpkt reads it: (status U_*, frame code F_*, payload offset,
-    payload length, IP header offset, IP version). ``ext6``: dpkt.ip6's extension header numbers."""
+    payload length, IP header offset, IP version). ``ethk``: the Ethernet type table (E_*),
+    ``ext6``: dpkt.ip6's extension header numbers."""
     if flen < ETH_HEADER_BYTES:
         return U_NOT_ETHERNET_IPV4, 0, 0, 0, 0, 0
     et = _u16be(d, body + 12)
     off = ETH_HEADER_BYTES
-    if et == 0x8100 or et == 0x88A8 or et == 0x9100 or et == 0x9200:  # dpkt: up to two tags
+    kind = ethk[0, et]
+    if et == 0:  # dpkt: "unknown type, assume Ethernet" (no IP packet) unless Cisco ISL or Novell raw 802.3
+        isl = (d[body] == 0x01 or d[body] == 0x03) and d[body + 1] == 0 and d[body + 2] == 0x0C
+        isl = isl and d[body + 3] == 0 and d[body + 4] == 0
+        ipx = flen >= ETH_HEADER_BYTES + 2 and d[body + 14] == 0xFF and d[body + 15] == 0xFF
+        kind = E_REFUSE if isl or ipx else E_NOT_IP
+    if kind == E_VLAN:  # dpkt: up to two tags (a second one after 802.1Q)
         if flen < off + 4:
             return U_NOT_ETHERNET_IPV4, 0, 0, 0, 0, 0
         et = _u16be(d, body + off + 2)
@@ -233,9 +249,12 @@ def _frame(d, body, flen, port, ext6):
                 return U_NOT_ETHERNET_IPV4, 0, 0, 0, 0, 0
             et = _u16be(d, body + off + 2)
             off += 4
+        kind = ethk[1, et]
+    if kind == E_NOT_IP:
+        return U_OK, F_NOT_IP, 0, 0, 0, 0
     ip = body + off
     avail = flen - off
-    if et == ETH_TYPE_IP:
+    if kind == E_IP4:
         if avail < 20:
             return U_NOT_ETHERNET_IPV4, 0, 0, 0, 0, 0
         vhl = d[ip]
@@ -252,7 +271,7 @@ def _frame(d, body, flen, port, ext6):
         udp = ip + 20
         udp_bytes = ip_len - 20
         version = 4
-    elif et == ETH_TYPE_IP6:
+    elif kind == E_IP6:
         if avail < 40:
             return U_NOT_ETHERNET_IPV4, 0, 0, 0, 0, 0
         plen6 = _u16be(d, ip + 4)
@@ -280,7 +299,7 @@ def _frame(d, body, flen, port, ext6):
 
 
 @njit(cache=True, _nrt=False)
-def _record(d, pos, port, fmt, ffmt, ext6):
+def _record(d, pos, port, fmt, ffmt, ethk, ext6):
     """One record (classic pcap) or block (pcapng) at ``pos``: (status U_*, next pos, frame code F_*,
     payload offset, payload length, IP header offset, IP version, arrival).
 
@@ -343,12 +362,12 @@ def _record(d, pos, port, fmt, ffmt, ext6):
         # as dpkt: tsoffset + (((ts_high << 32) | ts_low) / divisor), the int converted to float first
         arrival = ffmt[FF_OFFSET] + np.float64((hi << 32) | _u32(d, pos + 16, big)) / ffmt[FF_DIVISOR]
         body = pos + EPB_HEADER_BYTES
-    status, code, o, plen, ip, version = _frame(d, body, incl, port, ext6)
+    status, code, o, plen, ip, version = _frame(d, body, incl, port, ethk, ext6)
     return status, nxt, code, o, plen, ip, version, arrival
 
 
 @njit(cache=True, _nrt=False)
-def _next_datagram(d, pos, port, fmt, ffmt, ext6, skip, frames, s):
+def _next_datagram(d, pos, port, fmt, ffmt, ethk, ext6, skip, frames, s):
     """Walk the records from ``pos`` to the next datagram to ``port``, noting the skipped frames in
     ``skip`` (record number, F_*). ``frames``: records walked so far, ``s``: skipped frames so far.
 
@@ -357,7 +376,7 @@ def _next_datagram(d, pos, port, fmt, ffmt, ext6, skip, frames, s):
     end of the file (status U_OK) or at a record the fast path does not read (its status)."""
     n = d.shape[0]
     while pos < n:
-        status, nxt, code, o, plen, ip, version, arrival = _record(d, pos, port, fmt, ffmt, ext6)
+        status, nxt, code, o, plen, ip, version, arrival = _record(d, pos, port, fmt, ffmt, ethk, ext6)
         if status != U_OK and nxt == pos:  # the record itself is not read
             return status, pos, frames, s, -1, 0, 0, 0, 0.0
         pos = nxt
@@ -376,7 +395,9 @@ def _next_datagram(d, pos, port, fmt, ffmt, ext6, skip, frames, s):
 
 
 @njit(cache=True, _nrt=False)
-def scan_records(d, port, fmt, ffmt, ext6, out_t, out_ip, out_ver, out_off, out_len, out_frame, skip, res):
+def scan_records(
+    d, port, fmt, ffmt, ethk, ext6, out_t, out_ip, out_ver, out_off, out_len, out_frame, skip, res
+):  # fmt: skip
     """Every record: datagrams to ``port`` into out_* (arrival, IP header offset and version, payload
     offset and length, 1-based record number), skipped frames into ``skip`` (record number, F_*).
     ``res``: (status U_*, records, datagrams, skipped)."""
@@ -386,7 +407,7 @@ def scan_records(d, port, fmt, ffmt, ext6, out_t, out_ip, out_ver, out_off, out_
     s = 0
     while True:
         status, pos, frames, s, o, plen, ip, version, arrival = _next_datagram(
-            d, pos, port, fmt, ffmt, ext6, skip, frames, s
+            d, pos, port, fmt, ffmt, ethk, ext6, skip, frames, s
         )
         if o < 0:
             break
@@ -456,6 +477,7 @@ def ingest(
     port,
     fmt,
     ffmt,
+    ethk,
     ext6,
     per_type,
     max_streams,
@@ -512,7 +534,7 @@ def ingest(
     stopped = False
     while True:
         status, pos, frames, s, o, plen, ip, version, arrival = _next_datagram(
-            d, pos, port, fmt, ffmt, ext6, skip, frames, s
+            d, pos, port, fmt, ffmt, ethk, ext6, skip, frames, s
         )
         if o < 0:
             break
@@ -628,11 +650,35 @@ class MappedCapture:
     data: np.ndarray  #: the whole file (uint8)
     fmt: np.ndarray  #: int64 slots FMT_*
     ffmt: np.ndarray  #: float64 slots FF_*
+    ethk: np.ndarray  #: uint8 (2, 65536): the Ethernet type table (E_*)
     ext6: np.ndarray  #: bool (256,): dpkt.ip6's extension header numbers
 
     @property
     def args(self) -> tuple:
-        return self.fmt, self.ffmt, self.ext6
+        return self.fmt, self.ffmt, self.ethk, self.ext6
+
+
+def _ethernet_table() -> np.ndarray:
+    """How dpkt.ethernet reads each Ethernet type (E_*): row 0 a frame's own type, row 1 the type after
+    its VLAN tags. A type above 1500 that dpkt does not parse leaves the payload as bytes (no IP
+    packet: skipped as not_ip by the exact reader); ARP is parsed into an ARP packet or, cut short, left
+    as bytes, never an error; the other types dpkt parses, 802.3 lengths (1500 and below: LLC, ISL,
+    raw 802.3) and MPLS label stacks are left to the exact reader."""
+    import dpkt
+
+    eth = dpkt.ethernet
+    parsed = set(eth.Ethernet._typesw)
+    inner = np.full(65536, E_NOT_IP, dtype=np.uint8)
+    inner[sorted(parsed)] = E_REFUSE
+    inner[eth.ETH_TYPE_ARP] = E_NOT_IP
+    inner[0] = E_REFUSE  # (dpkt then falls back to the outer type)
+    inner[eth.ETH_TYPE_IP] = E_IP4
+    inner[eth.ETH_TYPE_IP6] = E_IP6
+    outer = inner.copy()
+    outer[: 1500 + 1] = E_REFUSE
+    outer[[eth.ETH_TYPE_MPLS, eth.ETH_TYPE_MPLS_MCAST]] = E_REFUSE
+    outer[sorted(eth._ETH_TYPES_QINQ)] = E_VLAN
+    return np.stack((outer, inner))
 
 
 def _ext6_table() -> np.ndarray:
@@ -696,7 +742,7 @@ def map_capture(path):
         data = np.memmap(p, dtype=np.uint8, mode="r") if size else np.zeros(0, dtype=np.uint8)
     except (OSError, ValueError) as exc:
         return f"cannot map: {exc}"
-    return MappedCapture(data, fmt, ffmt, _ext6_table())
+    return MappedCapture(data, fmt, ffmt, _ethernet_table(), _ext6_table())
 
 
 def record_capacity(data) -> int:

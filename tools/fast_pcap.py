@@ -20,7 +20,8 @@ record cut short by the snap length or a truncated tail) makes :func:`scan_captu
 and the caller falls back to the exact dpkt reader, which handles every case.
 
 Frames the dpkt reader would skip are counted under the same reasons (``other_port``, ``not_udp``,
-``ip_fragment``, ``udp_length_mismatch``). Timestamps are dpkt's to the bit: ``sec + usec / 1e6`` in
+``ip_fragment``, ``udp_length_mismatch``, and ``not_ip`` for an Ethernet type dpkt does not parse, or
+ARP; :func:`tools.fast_ingest._ethernet_table`). Timestamps are dpkt's to the bit: ``sec + usec / 1e6`` in
 floats for microsecond pcap; for nanosecond pcap dpkt computes ``sec + Decimal(nsec) / Decimal("1E9")``,
 exact on these digits, and the walk computes the double nearest to that exact value in integer
 arithmetic (:func:`tools.fast_ingest.nano_timestamp`); pcapng: ``tsoffset + float(ticks) / divisor``.
@@ -35,6 +36,7 @@ import numpy as np
 
 from tools.fast_ingest import (  # the compiled walk lives with the fast replay's single pass
     F_IP_FRAGMENT,
+    F_NOT_IP,
     F_NOT_UDP,
     F_OTHER_PORT,
     F_UDP_LENGTH_MISMATCH,
@@ -50,6 +52,7 @@ SKIP_REASONS = {
     F_NOT_UDP: "not_udp",
     F_IP_FRAGMENT: "ip_fragment",
     F_UDP_LENGTH_MISMATCH: "udp_length_mismatch",
+    F_NOT_IP: "not_ip",
 }
 
 

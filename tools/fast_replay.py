@@ -726,6 +726,8 @@ def _replay_ingested(got, track, options, ingest_s: float = 0.0):
         seqm[k] += n_valid
     metrics["link"]["outputs"] += k_out
     metrics["link"]["retransmits"] += int(retx.shape[0])
+    for k in ("state", "state_since", "transitions", "withheld"):  # the prefix's: not simulated after it
+        metrics["link"].pop(k, None)
     compiled = (n - h) - state.python_steps
     metrics["fast_replay"] = {
         "exact_prefix_datagrams": h,
@@ -735,6 +737,8 @@ def _replay_ingested(got, track, options, ingest_s: float = 0.0):
         "undone_for_scores": state.undone,
         "compiled_fraction": compiled / n,
         "retransmissions_added": int(retx.shape[0]),
+        # (the pipeline sections the compiled path does not advance: left out, not stale)
+        "not_simulated": ["vital", "link.state", "link.state_since", "link.transitions", "link.withheld"],
         "reason_bits": bits,  # taken out again by try_fast_replay (vital_reason; the prefix's rows -1)
     }
     last_frame = int(res[R_STOP_FRAME]) if stopped else int(res[R_FRAMES])
