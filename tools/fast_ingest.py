@@ -802,25 +802,37 @@ class Ingested:
         o = int(self.row_off[r])
         return host, int(self.data[o - 8]) << 8 | int(self.data[o - 7])
 
-    def first_sources(self, start: int) -> list[tuple[int, tuple[str, int], int]]:
-        """(row, (host, port), SENSOR_TYPE) of the first valid row of each (source, type) pair from row
-        ``start`` on, in row order (for the sender table: listener.senders), vectorised."""
-        rows = np.flatnonzero(self.row_code[start:] >= 0) + start
+    def source_ids(self, rows: np.ndarray):
+        """(index per row into the list, [((host, port), SENSOR_TYPE)] of the distinct pairs) for valid
+        ``rows``, vectorised as :meth:`first_sources`."""
         if rows.size == 0:
-            return []
+            return np.zeros(0, dtype=np.int64), []
+        _, first, inv = self._pair_keys(rows)
+        return inv, [(self.source(int(r)), int(self.row_code[r])) for r in rows[first].tolist()]
+
+    def _pair_keys(self, rows: np.ndarray):
         d = self.data
         ip = self.row_ip[rows]
         v6 = self.row_ver[rows] == 6
         o = self.row_off[rows]
         port_type = (_be_int(d, o - 8, 2) << 8) | self.row_code[rows]
         if not v6.any():  # one int64 key: address, port, type (np.unique on rows is much slower)
-            _, first = np.unique((_be_int(d, ip + 12, 4) << 24) | port_type, return_index=True)
-        else:
-            key = np.empty((rows.size, 3), dtype=np.int64)  # the walk's stream key, with the type
-            key[:, 0] = np.where(v6, _be_int(d, ip + 8, 8), 0)
-            key[:, 1] = np.where(v6, _be_int(d, ip + 16, 8), _be_int(d, ip + 12, 4))
-            key[:, 2] = (self.row_ver[rows].astype(np.int64) << 32) | port_type
-            _, first = np.unique(key, axis=0, return_index=True)
+            key1 = (_be_int(d, ip + 12, 4) << 24) | port_type
+            return np.unique(key1, return_index=True, return_inverse=True)
+        key = np.empty((rows.size, 3), dtype=np.int64)  # the walk's stream key, with the type
+        key[:, 0] = np.where(v6, _be_int(d, ip + 8, 8), 0)
+        key[:, 1] = np.where(v6, _be_int(d, ip + 16, 8), _be_int(d, ip + 12, 4))
+        key[:, 2] = (self.row_ver[rows].astype(np.int64) << 32) | port_type
+        u, first, inv = np.unique(key, axis=0, return_index=True, return_inverse=True)
+        return u, first, inv.reshape(-1)
+
+    def first_sources(self, start: int) -> list[tuple[int, tuple[str, int], int]]:
+        """(row, (host, port), SENSOR_TYPE) of the first valid row of each (source, type) pair from row
+        ``start`` on, in row order (for the sender table: listener.senders), vectorised."""
+        rows = np.flatnonzero(self.row_code[start:] >= 0) + start
+        if rows.size == 0:
+            return []
+        _, first, _ = self._pair_keys(rows)
         firsts = rows[np.sort(first)].tolist()
         return [(r, self.source(r), int(self.row_code[r])) for r in firsts]
 

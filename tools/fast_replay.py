@@ -13,8 +13,11 @@ clock at its arrival, the merge releasing each measurement at once (``merge.hold
    rejected datagrams get their reason from ``listener.codec`` itself,
 2. the start of the capture goes through the exact pipeline, datagram by datagram, only until every
    sender's stream has started and nothing is held (a handful of datagrams),
-3. the rest is checked (each stream continues in sequence, no gap, no reordering: the ingest pass's
-   notes), and one compiled pass advances the STROBE clock and dates the measurements against it
+3. the rest is checked (each stream continues in sequence: the ingest pass's notes; where one does
+   not, the listener's own sequence buffers, the prefix pipeline's ``StreamTable``, take every
+   datagram as ``Pipeline.receive`` and its timer would, :func:`_sequence`, and their releases go on
+   in the merge's order), and one compiled pass advances the STROBE clock and dates the measurements
+   against it
    (:func:`tools.fast_clock.run_clock`: the sensor-set "now" of every arrival, which dates a
    measurement without its epoch, and the listener's ``epoch_future`` and stale-output rules; a
    start with measurements before the first STROBE goes through the exact pipeline up to that
@@ -41,6 +44,7 @@ tests/test_fast_replay.py checks field by field, on a capture with junctions too
 from __future__ import annotations
 
 import copy
+import dataclasses
 import math
 import sys
 import time
@@ -325,32 +329,134 @@ class _Prefix:
         self.record(pipe.receive(payload, addr, t), t)
 
     def ready(self) -> bool:
-        """Hand-over point: nothing held in sequence buffers, merge or undated queue, no stream irregular
-        (the filter may be in any state: the fast path runs TrackFilter itself where it must)."""
+        """Hand-over point: nothing held in the sequence buffers, the merge or the undated queue (the
+        filter may be in any state: the fast path runs TrackFilter itself where it must; the sequence
+        buffers go on as they are, in the listener's own objects, where the rest needs them)."""
         pipe = self.pipe
         if pipe.stopped or pipe.streams.next_deadline() is not None:
             return False
+        held = pipe.streams.stats.totals
         m = pipe.metrics()
-        seq = m["sequencing"]
-        clean = all(
-            seq[k] == 0
-            for k in (
-                "reordered",
-                "duplicates",
-                "lost",
-                "late",
-                "resyncs",
-                "overflow",
-                "probation_drops",
-                "pending",
-            )
-        )
         return (
-            clean
+            held.pending == 0
+            and held.probation_held == 0
+            and held.jump_held == 0
             and m["merge"]["pending"] == 0
             and m["clock"]["undated_pending"] == 0
-            and seq["evictions"] == 0
         )
+
+
+#: sequence-buffer events the compiled path does not follow: a number given back (``reopen``, after a
+#: content rejection); every other decision (reordering, duplicates, losses, late items, restarts and
+#: probation, forward jumps held as suspects, overflow) is the buffers' own, taken in _sequence
+_SEQ_NOT_FOLLOWED = ("reopened",)
+
+
+@dataclass(frozen=True)
+class _Sequenced:
+    """What the listener's sequence buffers released after the prefix, in release order."""
+
+    m_idx: np.ndarray  #: measurement indices (into the ingest's arrays) in release order
+    m_pos: np.ndarray  #: their positions in the release order (interleaving with the STROBEs)
+    m_now: np.ndarray  #: their release times (arrival, or the end of a hold)
+    m_batch: np.ndarray  #: the release (push, timer poll or flush) each came out of
+    s_idx: np.ndarray  #: STROBE indices in release order
+    s_pos: np.ndarray
+    s_batch: np.ndarray
+
+    def merge_reason(self, t_s: np.ndarray, n_future: int) -> str:
+        """Why the merge could see the release otherwise than :meth:`merge_order` orders it (a STROBE
+        released after measurements of the same release: they are drained on the clock it leaves), or a
+        content rejection give a SEQ back (``reopen``); "" when it cannot."""
+        if n_future:
+            return "epoch_future rejections with sequence repair (the SEQ is given back: exact replay)"
+        if not np.all(np.isfinite(t_s)):
+            return "a measurement not dated after the hand-over"
+        if self.s_batch.size and self.m_batch.size:
+            # a STROBE released with measurements before it changes the clock their release is judged on
+            ub, first = np.unique(self.m_batch, return_index=True)  # (m_pos ascends: first = smallest)
+            at = np.minimum(np.searchsorted(ub, self.s_batch), ub.size - 1)
+            shared = ub[at] == self.s_batch
+            if np.any(shared & (self.m_pos[first[at]] < self.s_pos)):
+                return "a STROBE released after measurements in one release (the stale rule's clock)"
+        return ""
+
+    def merge_order(self, t_s: np.ndarray) -> np.ndarray:
+        """The filter's order of the released measurements: ``Pipeline._dispatch`` dates a release's
+        measurements and ``_drain`` hands them over by (epoch, push order) from the merge's heap, which
+        every drain empties (``merge.hold_s = 0``: the horizon is at least the newest epoch); so within
+        each release by epoch, ties in release order, releases in turn."""
+        return np.lexsort((self.m_pos, t_s, self.m_batch))
+
+
+def _sequence(got, pipe, h: int, n: int, stopped: bool, per_type: bool):
+    """The rest of the capture through the prefix pipeline's own sequence buffers (``pipe.streams``,
+    listener.seqbuf.StreamTable), exactly as ``Pipeline.receive`` pushes each valid datagram and its
+    timer polls them at their deadlines (the replay fires timers at their own times before the next
+    datagram), with the STOP's flush and the flush at the end: a :class:`_Sequenced`, or why the
+    exact replay is needed."""
+    from listener.seqbuf import stream_key
+
+    streams = pipe.streams
+    before = streams.stats
+    rows = np.flatnonzero(got.row_code[h:n] >= 0) + h
+    inv, sources = got.source_ids(rows)
+    keys = [stream_key(addr, stype, per_type) for addr, stype in sources]
+    d = got.data
+    o = got.row_off[rows]
+    seqs = (d[o + 1].astype(np.int64) | (d[o + 2].astype(np.int64) << 8)).tolist()
+    times = got.row_t[rows].tolist()
+    key_of = [keys[i] for i in inv.tolist()]
+    rel: list[int] = []
+    rel_t: list[float] = []
+    rel_b: list[int] = []
+    batch = 0
+    stop_row = n - 1 if stopped else -1
+    for r, k, sq, t in zip(rows.tolist(), key_of, seqs, times, strict=True):
+        nd = streams.next_deadline()
+        while nd is not None and nd <= t:
+            out = streams.poll(nd)
+            if out:
+                rel.extend(out)
+                rel_t.extend([nd] * len(out))
+                rel_b.extend([batch] * len(out))
+                batch += 1
+            nd = streams.next_deadline()
+        out = streams.push(k, sq, r, t)
+        if out:
+            rel.extend(out)
+            rel_t.extend([t] * len(out))
+            rel_b.extend([batch] * len(out))
+            batch += 1
+        if r == stop_row:
+            if r not in out:
+                return "a STOP held by a sequence buffer (exact replay)"
+            last_t = t
+            break
+    else:
+        last_t = float(got.row_t[n - 1])
+    out = streams.flush()  # the STOP's, or the end's (Pipeline.flush)
+    rel.extend(out)
+    rel_t.extend([last_t] * len(out))
+    rel_b.extend([batch] * len(out))
+    after = streams.stats
+    if after.evictions != before.evictions:
+        return "a sequence-buffer stream evicted (more senders than input.max_streams)"
+    for name in _SEQ_NOT_FOLLOWED:
+        if getattr(after.totals, name) != getattr(before.totals, name):
+            return f"sequence buffers: {name.replace('_', ' ')} (exact replay)"
+    rel_a = np.array(rel, dtype=np.int64)
+    pos = np.arange(rel_a.size)
+    meas_of = np.full(n, -1, dtype=np.int64)
+    meas_of[got.m_row] = np.arange(got.m_row.size)
+    strobe_of = np.full(n, -1, dtype=np.int64)
+    strobe_of[got.s_row] = np.arange(got.s_row.size)
+    m = meas_of[rel_a]
+    s = strobe_of[rel_a]
+    ism, iss = m >= 0, s >= 0
+    t_a = np.array(rel_t, dtype=np.float64)
+    b_a = np.array(rel_b, dtype=np.int64)
+    return _Sequenced(m[ism], pos[ism], t_a[ism], b_a[ism], s[iss], pos[iss], b_a[iss])
 
 
 def _senders_reason(got, pipe, h: int) -> str:
@@ -529,31 +635,58 @@ def _replay_ingested(got, track, options, ingest_s: float = 0.0):
         if int(got.m_row[j0 + int(np.argmax(undated[j0:]))]) < nxt_strobe:
             why = "measurements without epoch before any STROBE dates them (the undated queue)"
             return None, _info(False, why, h)
-    if res[R_LAST_BREAK] >= h:
-        why = "a stream with a gap, a duplicate or reordering (needs the sequence buffer)"
-        return None, _info(False, why, h)
     why = _senders_reason(got, pipe, h)
     if why:
         return None, _info(False, why, h)
     if not clock_supported():
         return None, _info(False, "Python >= 3.12 sums floats compensated (STROBE clock fit)", h)
     g0 = int(np.searchsorted(got.g_row, h))
-    mrows, m_time, kind, t_s, vals = (a[j0:] for a in (got.m_row, got.m_time, got.kind, got.t_s, got.vals))
+    seq = None
+    if res[R_LAST_BREAK] >= h:  # a gap, duplicate or reordering: the listener's own sequence buffers
+        seq = _sequence(got, pipe, h, n, bool(res[R_STOPPED]), options.config.input.per_type_sequence)
+        if isinstance(seq, str):
+            return None, _info(False, seq, h)
+        undated_rel = np.isnan(got.t_s[seq.m_idx])
+        n_by_strobe = int(np.count_nonzero(undated_rel))
+        mrows, m_time, kind, t_s, vals = (
+            a[seq.m_idx] for a in (got.m_row, got.m_time, got.kind, got.t_s, got.vals)
+        )
+        m_pos, m_now = seq.m_pos, seq.m_now
+        s_pos, s_ts, s_time = seq.s_pos, got.s_ts[seq.s_idx], got.s_time[seq.s_idx]
+        n_strobes = int(seq.s_idx.size)
+    else:
+        n_by_strobe = int(np.count_nonzero(undated[j0:]))  # run_clock dates them (never epoch_future)
+        mrows, m_time, kind, t_s, vals = (
+            a[j0:] for a in (got.m_row, got.m_time, got.kind, got.t_s, got.vals)
+        )
+        m_pos, m_now = mrows, m_time
+        s_pos, s_ts, s_time = got.s_row[s0:], got.s_ts[s0:], got.s_time[s0:]
+        n_strobes = int(s_pos.size)
     lap("checks")
 
     # 3. the STROBE clock: the sensor-set "now" at every measurement's arrival (epoch_future rejection,
     # the stale-output bound)
     cfg = options.config
     stale_before = cfg.link.max_output_age_s + cfg.merge.hold_s
-    n_by_strobe = int(np.count_nonzero(undated[j0:]))  # run_clock dates them in t_s (never epoch_future)
     clock0 = copy.deepcopy(pipe.clock)  # the clock at the hand-over (for _end_gap)
     fresh_min, future, n_future = replay_clock(
         pipe.clock,
-        (got.s_row[s0:], got.s_ts[s0:], got.s_time[s0:]),
-        (mrows, m_time, t_s),
+        (s_pos, s_ts, s_time),
+        (m_pos, m_time, t_s),
         cfg.clock.max_future_s,
         stale_before,
+        m_now,
     )
+    if seq is not None:
+        why = seq.merge_reason(t_s, n_future)
+        if why:
+            return None, _info(False, why, h)
+        order = seq.merge_order(t_s)
+        if np.any(order != np.arange(order.size)):
+            seq = dataclasses.replace(seq, m_idx=seq.m_idx[order])
+            mrows, m_time, kind, t_s, vals, fresh_min, m_now, future = (
+                a[order] for a in (mrows, m_time, kind, t_s, vals, fresh_min, m_now, future)
+            )
     lap("clock")
 
     # GNSS fixes to the track's local frame (fix quality 0 stays (0, 0): the filter counts it as no fix)
@@ -563,10 +696,12 @@ def _replay_ingested(got, track, options, ingest_s: float = 0.0):
         gm = got.g_meas[gq]
         got.vals[gm, 0] = np.asarray(e, dtype=np.float64)
         got.vals[gm, 1] = np.asarray(nn, dtype=np.float64)
+        if seq is not None:  # (vals was taken in release order before the projection)
+            vals = got.vals[seq.m_idx]
     if n_future:  # Pipeline._date: epoch_future rejection
         keep = ~future
-        mrows, m_time, kind, t_s, vals, fresh_min = (
-            a[keep] for a in (mrows, m_time, kind, t_s, vals, fresh_min)
+        mrows, m_time, kind, t_s, vals, fresh_min, m_now = (
+            a[keep] for a in (mrows, m_time, kind, t_s, vals, fresh_min, m_now)
         )
     nm = mrows.size
     lap("pack")
@@ -585,7 +720,7 @@ def _replay_ingested(got, track, options, ingest_s: float = 0.0):
         -math.inf if last is None else float(last.epoch_s),
         math.nan if last is None else float(last.arc_length_m),
         cols,
-        m_time,
+        m_now,  # an estimate is sent when its measurement is released (its arrival, or a hold's end)
         options.config.link.start_seq + pipe.link.outputs,
     )
     i = 0
@@ -703,7 +838,7 @@ def _replay_ingested(got, track, options, ingest_s: float = 0.0):
     types = res[R_TYPES : R_TYPES + 16] - np.bincount(head[head >= 0], minlength=16)
     for t in np.flatnonzero(types).tolist():
         pipe.by_type[_TYPE_NAME.get(t, str(t))] += int(types[t])
-    c["strobes"] += int(types[9])
+    c["strobes"] += n_strobes
     if nm - n_by_strobe:
         c["dated_by_epoch"] += nm - n_by_strobe
     if n_by_strobe:
@@ -721,9 +856,10 @@ def _replay_ingested(got, track, options, ingest_s: float = 0.0):
         pipe.last_estimate = state.last_estimate(float(est["lat"][-1]), float(est["lon"][-1]))
     metrics = pipe.metrics()
     seqm = metrics["sequencing"]
-    n_valid = int(types.sum())
-    for k in ("received", "released", "in_order"):
-        seqm[k] += n_valid
+    if seq is None:  # (else the listener's own sequence buffers took every datagram)
+        n_valid = int(types.sum())
+        for k in ("received", "released", "in_order"):
+            seqm[k] += n_valid
     metrics["link"]["outputs"] += k_out
     metrics["link"]["retransmits"] += int(retx.shape[0])
     for k in ("state", "state_since", "transitions", "withheld"):  # the prefix's: not simulated after it
