@@ -16,7 +16,7 @@ import dpkt
 import numpy as np
 import pytest
 from helpers_capture import frame_ethernet, write_capture
-from hypothesis import given
+from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from interface_modules.offline import generate
@@ -532,6 +532,65 @@ def test_strobe_dated_pcapng_with_vlan(strobe_dated, tmp_path):
     assert info.used, info.reason
     assert exact.metrics["input"]["dated_by_strobe"] > 7000
     assert_same(exact, fast)
+
+
+def _small_captures() -> dict[str, bytes]:
+    import tempfile
+    from pathlib import Path
+
+    dgrams = [(1.7e9 + 0.01 * i, ("127.0.0.1", 40000 + i % 3), bytes([1, i, 0, 0, 7]) + bytes(56))
+              for i in range(12)]  # fmt: skip
+    out = {}
+    with tempfile.TemporaryDirectory() as d:
+        for name, form in FORMS.items():
+            path = Path(d) / "c.cap"
+            write_capture(path, dgrams, extra=[(dgrams[4][0] + 1e-7, NOT_IP_FRAMES[0])], **form)
+            out[name] = path.read_bytes()
+    return out
+
+
+_SMALL = _small_captures()
+
+
+_EDITS = st.lists(st.tuples(st.integers(0, 10**6), st.integers(0, 255)), min_size=1, max_size=4)
+
+
+@settings(max_examples=300, deadline=None)
+@given(form=st.sampled_from(sorted(_SMALL)), edits=_EDITS, cut=st.integers(0, 10**6))
+def test_the_compiled_walk_reads_damaged_files_as_dpkt_does(form, edits, cut):
+    """Bytes of a small capture of each form overwritten (and the file cut): whenever the compiled walk
+    reads the file, it returns what the exact replay's dpkt reader returns (every datagram, its
+    timestamp, port and payload, the skip counts, the records); otherwise it gives a reason."""
+    import tempfile
+    from collections import Counter
+    from pathlib import Path
+
+    from tools.errors import CaptureError
+    from tools.fast_pcap import SKIP_REASONS
+
+    raw = bytearray(_SMALL[form])
+    for at, value in edits:
+        raw[at % len(raw)] = value
+    if cut % 5 == 0:
+        raw = raw[: cut % len(raw)]
+    with tempfile.TemporaryDirectory() as d:
+        path = Path(d) / "c.cap"
+        path.write_bytes(bytes(raw))
+        scan = scan_capture(path, 48000)
+        if isinstance(scan, str):
+            return
+        stats = CaptureStats()
+        try:
+            ref = list(read_capture(path, 48000, stats))
+        except CaptureError as exc:  # pragma: no cover - a file the walk read must be a capture
+            raise AssertionError(f"the walk read a file the exact reader refuses: {exc}") from exc
+        assert scan.time_s.size == len(ref)
+        for k, g in enumerate(ref):
+            o, n = int(scan.offset[k]), int(scan.length[k])
+            assert (scan.time_s[k], int(scan.src_port[k]), bytes(scan.data[o : o + n])) == (
+                g.time_s, g.src[1], g.payload)
+        assert Counter(SKIP_REASONS[int(c)] for _, c in scan.skipped_at) == stats.skipped
+        assert scan.frames == stats.frames
 
 
 @given(sec=st.integers(0, 2**32 - 1), nsec=st.integers(0, 2**32 - 1))
