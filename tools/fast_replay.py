@@ -804,7 +804,7 @@ def _replay_ingested(got, track, options, ingest_s: float = 0.0):
     reasons = e_i[3, :rows].copy()
     reasons[:he] = prefix.reason_rows
     retx = _retransmissions(prefix.est_rows, est["arrival"][he:], float(got.row_t[n - 1]), cfg.link)
-    retx, why = _end_gap(retx, k_out, got, pipe, clock0, (got.s_ts[s0:], got.s_time[s0:]), cfg)
+    retx, why = _end_gap(retx, k_out, got, pipe, clock0, (s_ts, s_time), cfg)
     if why:
         return None, _info(False, why, h)
     if retx.size:  # after row he + after[k]: a resend of that row's estimate at times[k]
@@ -903,6 +903,8 @@ def _replay_ingested(got, track, options, ingest_s: float = 0.0):
 def _end_gap(retx: np.ndarray, k_out: int, got, pipe, clock0, strobes, cfg):
     """The resends of the last estimate sent, after the last measurement (the end of the capture), with
     the vital supervision on: (the resend rows kept, "") or (, why the exact replay is needed).
+    ``strobes``: (timestamp, arrival) of the STROBEs after the hand-over, in the order the clock took
+    them; ``clock0``: the clock at the hand-over.
 
     After the last measurement the listener's timer runs at each module's time-out
     (``Pipeline._supervision_deadline``: its last datagram + its time-out / clock.rate + the margin),
@@ -937,15 +939,12 @@ def _end_gap(retx: np.ndarray, k_out: int, got, pipe, clock0, strobes, cfg):
         for k in (1, 2, 3) if np.any(got.kind == k)
     )  # fmt: skip
     due = [(d, k) for d, k in due if d > last_meas]  # (earlier ones ran during the capture)
-    done = 0  # STROBEs applied to clock0
 
     def status_at(now: float):
-        nonlocal done
-        upto = int(np.searchsorted(strobes[1], now, side="left"))  # the STROBEs received before now
-        if upto > done:
-            replay_strobes(clock0, strobes[0][done:upto], strobes[1][done:upto])
-            done = upto
-        t = clock0.to_sensor_time(now)
+        clock = copy.deepcopy(clock0)
+        before = strobes[1] < now  # the STROBEs taken before now (in the order the clock took them)
+        replay_strobes(clock, strobes[0][before], strobes[1][before])
+        t = clock.to_sensor_time(now)
         return None if t is None else pipe.filter.estimate(at_s=t, propagate=True)
 
     sent_before = math.inf  # resends before this time are sent (no LOST seen by then)
@@ -998,17 +997,18 @@ def _retransmissions(prefix_rows, created: np.ndarray, t_end: float, link) -> np
         first = (-1, float(prefix_rows[k0][4]), len(prefix_rows) - 1 - k0, float(prefix_rows[-1][4]))
     else:
         first = None
-    times = created.tolist()
+    count = created.shape[0]
     # the gaps in which a resend can fall: the next estimate (or the end) at least an interval after
     gaps = np.flatnonzero(np.diff(np.append(created, t_end)) >= interval - 1e-9).tolist()
-    starts = ([first] if first is not None else []) + [(k, times[k], 0, times[k]) for k in gaps]
+    starts = [first] if first is not None else []
+    starts += [(k, float(created[k]), 0, float(created[k])) for k in gaps]
     for k, made, resends, last_sent in starts:
-        until = times[k + 1] if k + 1 < len(times) else t_end
+        until = float(created[k + 1]) if k + 1 < count else t_end
         while resends < most:
             due = last_sent + interval  # ObcuLink.next_timer; handle_timer(due) finds it due
             final = due > until  # not before the next datagram: only the final flush may still resend
             if final:
-                if k + 1 < len(times) or not t_end - last_sent >= interval - 1e-12:
+                if k + 1 < count or not t_end - last_sent >= interval - 1e-12:
                     break
                 due = t_end
             if due - made > age:
