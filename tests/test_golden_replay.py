@@ -94,3 +94,22 @@ def test_exact_replay_outputs_match_their_golden_hash(name):
     want = GOLDEN[name]
     assert got[0] == want[0], f"{name}: the capture changed (the simulator): {got[0]}"
     assert got[1] == want[1], f"{name}: the replay's outputs changed: {got[1]}"
+
+
+@pytest.mark.parametrize("name", sorted(GOLDEN))
+def test_compiled_replay_gives_the_golden_hash(name, tmp_path):
+    """``sfa replay``'s default path on the same captures (written as pcap) runs compiled on every one,
+    the STROBE-dated lossy capture (sequence repair) and the scripted sensor faults included, and gives
+    the same golden hash as the exact replay."""
+    from helpers_capture import write_capture
+
+    from tools.fast_replay import try_fast_replay
+
+    sc, dgrams = _capture(name)
+    cap = tmp_path / "capture.pcap"
+    write_capture(cap, dgrams)
+    sel = FilterSelection(imu=sc.imu.preset, odometer=sc.odometer.preset, gps=sc.gps.preset)
+    with TrackDatabase.open(database_path(sc)) as track:
+        result, info = try_fast_replay(cap, track, ReplayOptions(config=ListenerConfig(filter=sel)))
+    assert info.used, info.reason
+    assert _hash_estimates(result) == GOLDEN[name][1], name

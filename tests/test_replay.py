@@ -236,8 +236,10 @@ def test_replay_of_a_truncated_capture_warns_with_the_counts(world, tmp_path):
     assert res.returncode == 0, res.stderr
     last_record = 16 + len(frame_ethernet(world["dgrams"][-1][1], 48000, world["dgrams"][-1][2]))
     assert res.stderr.strip().splitlines() == [
+        f"sfa replay: compiled path not used (capture: record {len(world['dgrams']) + 1}: truncated record);"
+        " ran the exact replay",  # (the exact reader keeps what comes before the damaged record)
         f"sfa replay: warning: {p}: capture truncated mid-record: skipped the last {last_record - 20} bytes"
-        f" (1 incomplete record) after {len(world['dgrams']) + 1} complete records"
+        f" (1 incomplete record) after {len(world['dgrams']) + 1} complete records",
     ]
     capture = json.loads((out / "metrics.json").read_text())["capture"]
     assert (capture["truncated_records"], capture["truncated_bytes"]) == (1, last_record - 20)
@@ -290,39 +292,45 @@ def test_bad_truth_files(tmp_path):
             read_truth_csv(p)
 
 
-def test_fast_flag_gives_the_same_estimates_or_says_why(world, tmp_path):
+def test_compiled_path_is_the_default_with_the_same_outputs(world, tmp_path):
+    """``sfa replay`` runs the compiled path by default, ``--exact`` the per-datagram pipeline, ``--fast``
+    is still accepted: the same estimates.csv (every output row, resends included) and Parquet file."""
     outs = {}
-    for flag in ("", "--fast"):
+    for flag in ("", "--exact", "--fast"):
         out = tmp_path / f"o{flag}"
         res = subprocess.run(
-            [
-                sys.executable,
-                "-m",
-                "sfa",
-                "replay",
-                str(world["cap"]),
-                "--track",
-                str(world["track_path"]),
-                "--out",
-                str(out),
-                "--quiet",
-                "--no-report",
-                "--no-baselines",
-                *([flag] if flag else []),
-            ],
-            check=True,
-            capture_output=True,
-            text=True,
-            timeout=300,
-        )
-        outs[flag] = (out, res)
-    assert (outs[""][0] / "estimates.csv").read_bytes() == (outs["--fast"][0] / "estimates.csv").read_bytes()
-    fast_out, fast_res = outs["--fast"]
-    path = json.loads((fast_out / "metrics.json").read_text())["replay_path"]
-    assert path in ("fast", "exact")
-    if path == "exact":
-        assert "fast path not used (" in fast_res.stderr
-    assert f"replay ({path})" in fast_res.stdout
+            [sys.executable, "-m", "sfa", "replay", str(world["cap"]), "--track", str(world["track_path"]),
+             "--out", str(out), "--quiet", "--no-report", "--no-baselines", *([flag] if flag else [])],
+            check=True, capture_output=True, text=True, timeout=300,
+        )  # fmt: skip
+        path = json.loads((out / "metrics.json").read_text())["replay_path"]
+        outs[flag] = (out, res, path)
+    assert outs[""][2] == outs["--fast"][2] == "fast", outs[""][1].stderr
+    assert outs["--exact"][2] == "exact"
+    for flag in ("", "--exact", "--fast"):
+        out, res, path = outs[flag]
+        assert f"replay ({path})" in res.stdout
+        assert "compiled path not used" not in res.stderr
+        assert (out / "estimates.csv").read_bytes() == (outs["--exact"][0] / "estimates.csv").read_bytes()
+    pq = pytest.importorskip("pyarrow.parquet")
+    exact = pq.read_table(outs["--exact"][0] / "estimates.parquet")
+    assert pq.read_table(outs[""][0] / "estimates.parquet").equals(exact)  # the reason bits too
+
+
+def test_a_capture_the_compiled_path_declines_says_why_in_one_line(world, tmp_path):
+    """A merge hold (the compiled path needs 0): the exact replay runs, and stderr says why, once."""
+    out = tmp_path / "held"
+    res = subprocess.run(
+        [sys.executable, "-m", "sfa", "replay", str(world["cap"]), "--track", str(world["track_path"]),
+         "--out", str(out), "--quiet", "--no-report", "--no-baselines", "--set", "merge.hold_s=0.05"],
+        check=True, capture_output=True, text=True, timeout=300,
+    )  # fmt: skip
+    assert res.stderr.strip().splitlines() == [
+        "sfa replay: compiled path not used (merge.hold_s = 0.05 (the fast path needs 0));"
+        " ran the exact replay"
+    ]
+    assert json.loads((out / "metrics.json").read_text())["replay_path"] == "exact"
+    assert "replay (exact)" in res.stdout
 
 
 def test_outputs_after_a_seq_wrap_are_not_taken_for_retransmissions(world):

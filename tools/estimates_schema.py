@@ -49,7 +49,7 @@ COLUMNS: tuple[Column, ...] = (
 
 REASONS_COLUMN = Column(
     "reasons", "-", "uint32",
-    "reason bits of the status (see reason bits); null where not recorded (the --fast replay)",
+    "reason bits of the status (see reason bits); null where not recorded",
 )  # fmt: skip
 """Parquet only: appended after the CSV's columns."""
 

@@ -215,16 +215,20 @@ def run_strobes(timestamp, now, window, prm, st, smp_t, smp_o, hx, hy, out):
 
 @njit(cache=True, _nrt=False)
 def run_clock(
-    s_row, s_ts, s_time, m_row, m_time, t_s, window, prm, max_future, stale_before, st, smp_t, smp_o,
-    hx, hy, fresh_min, future,
+    s_row, s_ts, s_time, m_row, m_time, t_s, m_now, window, prm, max_future, stale_before, st, smp_t,
+    smp_o, hx, hy, fresh_min, future,
 ):  # fmt: skip
     """The STROBEs (datagram ``s_row``, timestamp ``s_ts``, arrival ``s_time``) and the measurements
     (datagram ``m_row``, arrival ``m_time``, epoch ``t_s``) of one capture stretch, in datagram order.
 
     Per measurement, with the clock as the STROBEs before it left it (``StrobeClock.to_sensor_time`` of its
-    arrival: sensor_now; NaN before any STROBE): ``future[j]``: the listener rejects it as epoch_future
-    (t_s > sensor_now + max_future); ``fresh_min[j]``: sensor_now - stale_before (estimates with an older
-    epoch are stale, not sent). Every STROBE is applied (those after the last measurement too).
+    arrival: sensor_now; NaN before any STROBE): a measurement without its epoch (``t_s[j]`` NaN) is
+    dated ``t_s[j] = sensor_now`` (``Pipeline._date``: the STROBE clock at arrival; the caller makes sure
+    the clock has a STROBE by then, else the listener would queue it undated); ``future[j]``: the
+    listener rejects a carried epoch as epoch_future (t_s > sensor_now + max_future); ``fresh_min[j]``:
+    the clock's sensor time at ``m_now[j]`` (the measurement's release: its arrival, or the end of a
+    sequence buffer's hold) - stale_before (estimates with an older epoch are stale, not sent). Every
+    STROBE is applied (those after the last measurement too).
     Returns the number of future epochs."""
     n = int(st[C_N])
     si = 0
@@ -240,10 +244,17 @@ def run_clock(
             sn = now + (st[C_INTERCEPT] + st[C_SLOPE] * (now - st[C_REF]))  # as sensor_now
         else:
             sn = math.nan
-        fut = t_s[j] > sn + max_future
-        future[j] = fut
-        if fut:
-            n_future += 1
+        if math.isnan(t_s[j]):  # no epoch: dated by the clock at its arrival (Pipeline._date), never future
+            t_s[j] = sn
+            future[j] = False
+        else:
+            fut = t_s[j] > sn + max_future
+            future[j] = fut
+            if fut:
+                n_future += 1
+        if m_now[j] != now:
+            later = m_now[j]
+            sn = later + (st[C_INTERCEPT] + st[C_SLOPE] * (later - st[C_REF])) if n > 0 else math.nan
         fresh_min[j] = sn - stale_before
     while si < n_s:
         n = _on_strobe(s_ts[si], s_time[si], n, window, prm, st, smp_t, smp_o, hx, hy)
@@ -340,18 +351,20 @@ def replay_strobes(clock, timestamp: np.ndarray, now: np.ndarray) -> np.ndarray:
     return out
 
 
-def replay_clock(clock, strobes, meas, max_future: float, stale_before: float):
+def replay_clock(clock, strobes, meas, max_future: float, stale_before: float, m_now=None):
     """Advance ``clock`` (a StrobeClock) by the STROBEs ``strobes`` = (datagram index, timestamp, arrival)
     and date the measurements ``meas`` = (datagram index, arrival, epoch) against it on the way, as
     :func:`replay_strobes` and :func:`sensor_now` would (one compiled pass, no per-measurement state rows).
 
-    Returns (fresh_min, future, number of future epochs): see :func:`run_clock`."""
+    ``m_now``: the measurements' release times (default: their arrivals). Returns (fresh_min, future,
+    number of future epochs): see :func:`run_clock`."""
     window, st, smp_t, smp_o, hx, hy = _state_of(clock)
     m_row = meas[0]
     fresh_min = np.empty(m_row.shape[0])
     future = np.empty(m_row.shape[0], dtype=np.bool_)
     n_future = run_clock(
-        *strobes, *meas, window, _params(clock), float(max_future), float(stale_before),
+        *strobes, *meas, meas[1] if m_now is None else m_now, window, _params(clock), float(max_future),
+        float(stale_before),
         st, smp_t, smp_o, hx, hy, fresh_min, future,
     )  # fmt: skip
     _set_state(clock, window, st, smp_t, smp_o)

@@ -1,7 +1,9 @@
-"""The compiled front end of the fast replay: pcap records, INPUT decoding and packing in one pass.
+"""The compiled front end of the fast replay: capture records, INPUT decoding and packing in one pass.
 
-:func:`scan_records` walks the record headers of a memory-mapped classic pcap (the layout
-:mod:`tools.fast_pcap` describes: Ethernet, IPv4 without options, UDP); :func:`decode_many` decodes
+:func:`scan_records` walks the records of a memory-mapped capture as the dpkt reader of the exact
+replay (:mod:`tools.capture_reader`) interprets them, for the forms described in
+:mod:`tools.fast_pcap` (classic pcap in either byte order with micro- or nanosecond timestamps,
+pcapng, Ethernet with up to two VLAN tags, IPv4 and IPv6, UDP); :func:`decode_many` decodes
 INPUT_PROTOCOL payloads against listener.codec's tables (:mod:`tools.fast_decode` builds them). Both are
 wrapped by those two modules for their callers and tests. :func:`ingest` is the fast replay's single
 pass over the file: the same record walk and the same per-datagram decoding (one function,
@@ -9,7 +11,8 @@ pass over the file: the same record walk and the same per-datagram decoding (one
 from each datagram, written straight into its final arrays:
 
 - per datagram (up to and including the first valid STOP, where the replay ends): the payload offset
-  and the SENSOR_TYPE of a valid datagram (-1 when the codec would reject it),
+  and length, the IP header offset and version, the arrival time, and the SENSOR_TYPE of a valid
+  datagram (-1 when the codec would reject it),
 - the stream table (first datagram of every sender/type, a SEQ that does not continue its stream, more
   streams than the listener tracks), and the measurements without an epoch, per type,
 - the measurements (IMU, odometer, GPS, GROUND TRUTH) in ``sfa.batch.Packed`` layout (kind, epoch,
@@ -27,7 +30,8 @@ module's constants are read at compile time): numba's disk cache is invalidated 
 
 from __future__ import annotations
 
-import struct
+import math
+import socket
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -37,13 +41,38 @@ from numba import njit
 from numba.core import types
 from numba.extending import intrinsic
 
-PCAP_MAGIC_US_LE = 0xA1B2C3D4  #: classic pcap, microsecond timestamps, as read little-endian
-GLOBAL_HEADER_BYTES = 24
-RECORD_HEADER_BYTES = 16
+GLOBAL_HEADER_BYTES = 24  #: classic pcap file header
+RECORD_HEADER_BYTES = 16  #: classic pcap record header
+EPB_HEADER_BYTES = 28  #: pcapng Enhanced (and obsolete) Packet Block, up to the packet data
 ETH_HEADER_BYTES = 14
-#: record header + Ethernet + IPv4 (20) + UDP (8): a payload starts this far after its record header
-PAYLOAD_AFTER_RECORD = RECORD_HEADER_BYTES + ETH_HEADER_BYTES + 20 + 8
 DLT_EN10MB = 1
+#: classic pcap magic bytes as the file holds them -> (big-endian, nanosecond) as dpkt.pcap.Reader reads them
+#: (the "modified" pcap forms with a longer record header are left to the exact reader)
+CLASSIC_MAGICS = {
+    b"\xd4\xc3\xb2\xa1": (False, False),
+    b"\x4d\x3c\xb2\xa1": (False, True),
+    b"\xa1\xb2\xc3\xd4": (True, False),
+    b"\xa1\xb2\x3c\x4d": (True, True),
+}
+PCAPNG_SHB = 0x0A0D0D0A
+PCAPNG_EPB = 6
+PCAPNG_PB = 2  #: the obsolete Packet Block (dpkt reads it like an EPB)
+PCAPNG_OPT_COMMENT = 1
+ETH_TYPE_IP = 0x0800
+ETH_TYPE_IP6 = 0x86DD
+ETH_TYPE_8021Q = 0x8100
+#: dpkt.ethernet's _ETH_TYPES_QINQ: a first VLAN tag (802.1Q, 802.1ad, legacy QinQ); a second follows 802.1Q
+ETH_TYPES_VLAN = (0x8100, 0x88A8, 0x9100, 0x9200)
+
+# slots of the format descriptor (``fmt``, int64) and its float part (``ffmt``)
+FMT_PCAPNG = 0  #: 1: pcapng blocks, 0: classic pcap records
+FMT_BIG = 1  #: 1: the file's headers are big-endian
+FMT_NANO = 2  #: classic pcap with nanosecond timestamps (dpkt: sec + Decimal(nsec) / Decimal("1E9"))
+FMT_START = 3  #: file offset of the first record (block)
+NFMT = 4
+FF_DIVISOR = 0  #: pcapng: the first interface's timestamp resolution, as dpkt's float divisor
+FF_OFFSET = 1  #: pcapng: its timestamp offset [s] (float of dpkt's int if_tsoffset)
+NFFMT = 2
 
 # per-frame codes of the record walk
 F_DATAGRAM = 0
@@ -51,6 +80,16 @@ F_OTHER_PORT = 1
 F_NOT_UDP = 2
 F_IP_FRAGMENT = 3
 F_UDP_LENGTH_MISMATCH = 4
+F_NO_FRAME = 5  #: a pcapng block that is not a packet (skipped by dpkt, not a frame)
+F_NOT_IP = 6  #: an Ethernet frame dpkt reads as carrying no IP packet (ARP, LLDP, ...)
+
+# the Ethernet type table (``ethk``, uint8 (2, 65536): row 0 the frame's own type, row 1 the type after
+# its VLAN tags) as dpkt.ethernet reads them
+E_REFUSE = 0  #: a form whose dpkt reading the walk does not follow (802.3/LLC, MPLS, a parsed non-IP type)
+E_NOT_IP = 1  #: no IP packet: dpkt keeps the payload as bytes (a type it does not parse) or ARP
+E_IP4 = 2
+E_IP6 = 3
+E_VLAN = 4  #: a VLAN tag follows (row 0 only)
 
 # why the walk gave up (the exact reader takes over)
 U_OK = 0
@@ -59,12 +98,16 @@ U_NOT_ETHERNET_IPV4 = 2
 U_IP_HEADER = 3
 U_IP_LENGTH = 4
 U_UDP_HEADER = 5
+U_BLOCK = 6
+U_TIMESTAMP = 7
 UNSUPPORTED_REASONS = {
     U_TRUNCATED: "truncated record",
-    U_NOT_ETHERNET_IPV4: "frame not Ethernet/IPv4",
-    U_IP_HEADER: "IPv4 header not plain",
-    U_IP_LENGTH: "IPv4 length disagrees with the frame",
+    U_NOT_ETHERNET_IPV4: "Ethernet frame the fast path does not read (802.3/LLC, MPLS, cut short)",
+    U_IP_HEADER: "IP header not plain (IPv4 options or IPv6 extension headers)",
+    U_IP_LENGTH: "IP length disagrees with the frame",
     U_UDP_HEADER: "UDP header cut short",
+    U_BLOCK: "pcapng block the fast path does not read (a second section, packet options, a comment)",
+    U_TIMESTAMP: "timestamp out of the fast path's range",
 }
 
 MAX_FIELDS = 9  #: most payload fields of any form (GPS: 2 ints + 5 doubles; IMU: 7 doubles)
@@ -86,11 +129,7 @@ R_LAST_FIRST = 11  #: datagram index of the last stream's first datagram (-1: no
 R_LAST_BREAK = 12  #: last datagram whose SEQ does not continue its stream by one (-1: none)
 R_BAD = 13  #: datagrams the codec rejects
 R_TYPES = 16  #: 16 slots: valid datagrams per SENSOR_TYPE
-R_NO_EPOCH = 32  #: 16 slots: per SENSOR_TYPE, the last measurement datagram without its epoch (-1: none)
-NRES = 48
-
-#: N_DOUBLE of a measurement with its epoch, per SENSOR_TYPE (IMU, odometer, GPS, GROUND TRUTH)
-EPOCH_DOUBLES_BY_TYPE = np.array([0, 7, 3, 5, 0, 0, 0, 0, 5, 0, 0, 0, 0, 0, 0, 0], dtype=np.int64)
+NRES = 32
 
 
 @intrinsic
@@ -120,6 +159,31 @@ def _u32le(d, i):
 
 
 @njit(cache=True, _nrt=False)
+def _u32be(d, i):
+    return (
+        (np.int64(d[i]) << 24) | (np.int64(d[i + 1]) << 16) | (np.int64(d[i + 2]) << 8) | np.int64(d[i + 3])
+    )
+
+
+@njit(cache=True, _nrt=False)
+def _u32(d, i, big):
+    return _u32be(d, i) if big else _u32le(d, i)
+
+
+@njit(cache=True, _nrt=False)
+def _u16(d, i, big):
+    if big:
+        return _u16be(d, i)
+    return np.int64(d[i]) | (np.int64(d[i + 1]) << 8)
+
+
+@njit(cache=True, _nrt=False)
+def _u64be(d, i):
+    """The 8 bytes at i as one int64 (big-endian, wrapping): a key, not a number."""
+    return (_u32be(d, i) << 32) | _u32be(d, i + 4)
+
+
+@njit(cache=True, _nrt=False)
 def _i32le(d, i):
     u = _u32le(d, i)
     if u >= 2147483648:
@@ -127,102 +191,229 @@ def _i32le(d, i):
     return u
 
 
-@njit(cache=True, _nrt=False)
-def _record(d, pos, port):
-    """One record at ``pos``: (status U_*, next pos, frame code F_*, payload offset, payload length).
+_E9 = 1_000_000_000
 
-    The checks and their order are those of the dpkt-compatible walk described in tools.fast_pcap."""
-    n = d.shape[0]
-    if pos + RECORD_HEADER_BYTES > n:
-        return U_TRUNCATED, pos, 0, 0, 0
-    incl = _u32le(d, pos + 8)
-    orig = _u32le(d, pos + 12)
-    body = pos + RECORD_HEADER_BYTES
-    if body + incl > n or incl != orig:
-        return U_TRUNCATED, pos, 0, 0, 0
-    nxt = body + incl
-    if incl < ETH_HEADER_BYTES + 20 or _u16be(d, body + 12) != 0x0800:
-        return U_NOT_ETHERNET_IPV4, nxt, 0, 0, 0
-    ip = body + ETH_HEADER_BYTES
-    vhl = d[ip]
-    if (vhl >> 4) != 4 or (vhl & 0xF) != 5:
-        return U_IP_HEADER, nxt, 0, 0, 0
-    ip_len = _u16be(d, ip + 2)
-    if ip_len < 20 or ip_len > incl - ETH_HEADER_BYTES:
-        return U_IP_LENGTH, nxt, 0, 0, 0
-    flags_off = _u16be(d, ip + 6)
-    if (flags_off & 0x2000) != 0 or (flags_off & 0x1FFF) != 0:
-        return U_OK, nxt, F_IP_FRAGMENT, 0, 0
-    if d[ip + 9] != 17:
-        return U_OK, nxt, F_NOT_UDP, 0, 0
-    udp = ip + 20
-    udp_bytes = ip_len - 20
+
+@njit(cache=True, _nrt=False)
+def nano_timestamp(sec, nsec):
+    """dpkt's nanosecond timestamp as the exact replay takes it, ``float(sec + Decimal(nsec) /
+    Decimal("1E9"))``: the double nearest to the exact decimal sec.nnnnnnnnn (28-digit Decimal
+    arithmetic is exact on these 10 + 10 digits), ties to even. With q, r = divmod(sec * 1e9 + nsec,
+    1e9), q in [2^k, 2^(k+1)): the double is q + j * 2^-s (s = 52 - k), j = r * 2^s / 1e9 rounded to even
+    in integer arithmetic. NaN for q = 0 (the caller refuses it)."""
+    total = sec * _E9 + nsec  # < 2^63 (sec, nsec < 2^32)
+    q = total // _E9
+    r = total - q * _E9
+    if q == 0:
+        return np.nan
+    k = 0
+    while (q >> (k + 1)) != 0:
+        k += 1
+    s = 52 - k
+    j = np.int64(0)
+    rem = r
+    left = s
+    while left > 0:  # long division of r * 2^s by 1e9, 32 bits at a time (rem < 2^30: no overflow)
+        t = 32 if left > 32 else left
+        rem = rem << t
+        j = (j << t) + rem // _E9
+        rem = rem % _E9
+        left -= t
+    if 2 * rem > _E9 or (2 * rem == _E9 and (j & 1) == 1):
+        j += 1
+    return np.float64(q) + math.ldexp(np.float64(j), -s)
+
+
+@njit(cache=True, _nrt=False)
+def _frame(d, body, flen, port, ethk, ext6):
+    """The Ethernet frame d[body:body + flen] as dpkt reads it: (status U_*, frame code F_*, payload offset,
+    payload length, IP header offset, IP version). ``ethk``: the Ethernet type table (E_*),
+    ``ext6``: dpkt.ip6's extension header numbers."""
+    if flen < ETH_HEADER_BYTES:
+        return U_NOT_ETHERNET_IPV4, 0, 0, 0, 0, 0
+    et = _u16be(d, body + 12)
+    off = ETH_HEADER_BYTES
+    kind = ethk[0, et]
+    if et == 0:  # dpkt: "unknown type, assume Ethernet" (no IP packet) unless Cisco ISL or Novell raw 802.3
+        isl = (d[body] == 0x01 or d[body] == 0x03) and d[body + 1] == 0 and d[body + 2] == 0x0C
+        isl = isl and d[body + 3] == 0 and d[body + 4] == 0
+        ipx = flen >= ETH_HEADER_BYTES + 2 and d[body + 14] == 0xFF and d[body + 15] == 0xFF
+        kind = E_REFUSE if isl or ipx else E_NOT_IP
+    if kind == E_VLAN:  # dpkt: up to two tags (a second one after 802.1Q)
+        if flen < off + 4:
+            return U_NOT_ETHERNET_IPV4, 0, 0, 0, 0, 0
+        et = _u16be(d, body + off + 2)
+        off += 4
+        if et == ETH_TYPE_8021Q:
+            if flen < off + 4:
+                return U_NOT_ETHERNET_IPV4, 0, 0, 0, 0, 0
+            et = _u16be(d, body + off + 2)
+            off += 4
+        kind = ethk[1, et]
+    if kind == E_NOT_IP:
+        return U_OK, F_NOT_IP, 0, 0, 0, 0
+    ip = body + off
+    avail = flen - off
+    if kind == E_IP4:
+        if avail < 20:
+            return U_NOT_ETHERNET_IPV4, 0, 0, 0, 0, 0
+        vhl = d[ip]
+        if (vhl >> 4) != 4 or (vhl & 0xF) != 5:
+            return U_IP_HEADER, 0, 0, 0, 0, 0
+        ip_len = _u16be(d, ip + 2)
+        if ip_len < 20 or ip_len > avail:
+            return U_IP_LENGTH, 0, 0, 0, 0, 0
+        flags_off = _u16be(d, ip + 6)
+        if (flags_off & 0x2000) != 0 or (flags_off & 0x1FFF) != 0:
+            return U_OK, F_IP_FRAGMENT, 0, 0, 0, 0
+        if d[ip + 9] != 17:
+            return U_OK, F_NOT_UDP, 0, 0, 0, 0
+        udp = ip + 20
+        udp_bytes = ip_len - 20
+        version = 4
+    elif kind == E_IP6:
+        if avail < 40:
+            return U_NOT_ETHERNET_IPV4, 0, 0, 0, 0, 0
+        plen6 = _u16be(d, ip + 4)
+        if plen6 == 0 or plen6 > avail - 40:  # (0: a jumbo payload; dpkt would take the whole frame)
+            return U_IP_LENGTH, 0, 0, 0, 0, 0
+        nxt = d[ip + 6]
+        if ext6[nxt]:
+            return U_IP_HEADER, 0, 0, 0, 0, 0
+        if nxt != 17:
+            return U_OK, F_NOT_UDP, 0, 0, 0, 0
+        udp = ip + 40
+        udp_bytes = plen6
+        version = 6
+    else:
+        return U_NOT_ETHERNET_IPV4, 0, 0, 0, 0, 0
     if udp_bytes < 8:
-        return U_UDP_HEADER, nxt, 0, 0, 0
+        return U_UDP_HEADER, 0, 0, 0, 0, 0
     if _u16be(d, udp + 2) != port:
-        return U_OK, nxt, F_OTHER_PORT, 0, 0
+        return U_OK, F_OTHER_PORT, 0, 0, 0, 0
     ulen = _u16be(d, udp + 4)
     plen = udp_bytes - 8
     if ulen != 0 and ulen - 8 != plen:
-        return U_OK, nxt, F_UDP_LENGTH_MISMATCH, 0, 0
-    return U_OK, nxt, F_DATAGRAM, udp + 8, plen
+        return U_OK, F_UDP_LENGTH_MISMATCH, 0, 0, 0, 0
+    return U_OK, F_DATAGRAM, udp + 8, plen, ip, version
 
 
 @njit(cache=True, _nrt=False)
-def _arrival(d, payload):
-    """Capture timestamp of the datagram whose payload starts at ``payload``: as dpkt, sec + usec / 1e6."""
-    rec = payload - PAYLOAD_AFTER_RECORD
-    return np.float64(_u32le(d, rec)) + np.float64(_u32le(d, rec + 4)) / 1e6
+def _record(d, pos, port, fmt, ffmt, ethk, ext6):
+    """One record (classic pcap) or block (pcapng) at ``pos``: (status U_*, next pos, frame code F_*,
+    payload offset, payload length, IP header offset, IP version, arrival).
+
+    The checks and their order are those of the dpkt-compatible walk described in tools.fast_pcap;
+    anything dpkt would read otherwise than plainly (a record or block cut short, packet options, a
+    second pcapng section) stops the walk with its status."""
+    n = d.shape[0]
+    big = fmt[FMT_BIG] != 0
+    if fmt[FMT_PCAPNG] == 0:
+        if pos + RECORD_HEADER_BYTES > n:
+            return U_TRUNCATED, pos, 0, 0, 0, 0, 0, 0.0
+        incl = _u32(d, pos + 8, big)
+        orig = _u32(d, pos + 12, big)
+        body = pos + RECORD_HEADER_BYTES
+        if body + incl > n or incl != orig:
+            return U_TRUNCATED, pos, 0, 0, 0, 0, 0, 0.0
+        nxt = body + incl
+        sec = _u32(d, pos, big)
+        frac = _u32(d, pos + 4, big)
+        if fmt[FMT_NANO] != 0:
+            arrival = nano_timestamp(sec, frac)
+            if not (arrival == arrival):
+                return U_TIMESTAMP, pos, 0, 0, 0, 0, 0, 0.0
+        else:
+            arrival = np.float64(sec) + np.float64(frac) / 1e6  # as dpkt: sec + usec / 1E6
+    else:
+        if pos + 8 > n:
+            return U_TRUNCATED, pos, 0, 0, 0, 0, 0, 0.0
+        btype = _u32(d, pos, big)
+        blen = _u32(d, pos + 4, big)
+        if blen < 12 or (blen & 3) != 0 or pos + blen > n:
+            return U_TRUNCATED, pos, 0, 0, 0, 0, 0, 0.0
+        if _u32(d, pos + blen - 4, big) != blen or btype == PCAPNG_SHB:
+            return U_BLOCK, pos, 0, 0, 0, 0, 0, 0.0
+        nxt = pos + blen
+        if btype != PCAPNG_EPB and btype != PCAPNG_PB:
+            return U_OK, nxt, F_NO_FRAME, 0, 0, 0, 0, 0.0
+        if blen < EPB_HEADER_BYTES + 4:
+            return U_BLOCK, pos, 0, 0, 0, 0, 0, 0.0
+        incl = _u32(d, pos + 20, big)
+        orig = _u32(d, pos + 24, big)
+        padded = (incl + 3) & ~3
+        if EPB_HEADER_BYTES + padded + 4 > blen or incl != orig:
+            return U_TRUNCATED, pos, 0, 0, 0, 0, 0, 0.0
+        o = pos + EPB_HEADER_BYTES + padded  # options: read as dpkt does, only plain ones accepted
+        end = nxt - 4
+        while o < end:
+            if o + 4 > end:
+                return U_BLOCK, pos, 0, 0, 0, 0, 0, 0.0
+            code = _u16(d, o, big)
+            size = 4 + ((_u16(d, o + 2, big) + 3) & ~3)
+            if code == PCAPNG_OPT_COMMENT or o + size > end:
+                return U_BLOCK, pos, 0, 0, 0, 0, 0, 0.0
+            o += size
+            if code == 0:
+                break
+        hi = _u32(d, pos + 12, big)
+        if hi >= 2147483648:
+            return U_TIMESTAMP, pos, 0, 0, 0, 0, 0, 0.0
+        # as dpkt: tsoffset + (((ts_high << 32) | ts_low) / divisor), the int converted to float first
+        arrival = ffmt[FF_OFFSET] + np.float64((hi << 32) | _u32(d, pos + 16, big)) / ffmt[FF_DIVISOR]
+        body = pos + EPB_HEADER_BYTES
+    status, code, o, plen, ip, version = _frame(d, body, incl, port, ethk, ext6)
+    return status, nxt, code, o, plen, ip, version, arrival
 
 
 @njit(cache=True, _nrt=False)
-def _next_datagram(d, pos, port, skip, frames, s):
+def _next_datagram(d, pos, port, fmt, ffmt, ethk, ext6, skip, frames, s):
     """Walk the records from ``pos`` to the next datagram to ``port``, noting the skipped frames in
     ``skip`` (record number, F_*). ``frames``: records walked so far, ``s``: skipped frames so far.
 
     Returns (status U_*, position after the datagram's record, frames, s, payload offset, payload
-    length); the payload offset is -1 when the walk ends: at the end of the file (status U_OK) or at a
-    record the fast path does not read (its status)."""
+    length, IP header offset, IP version, arrival); the payload offset is -1 when the walk ends: at the
+    end of the file (status U_OK) or at a record the fast path does not read (its status)."""
     n = d.shape[0]
     while pos < n:
-        status, nxt, code, o, plen = _record(d, pos, port)
-        if status == U_TRUNCATED:
-            return status, pos, frames, s, -1, 0
-        frames += 1
+        status, nxt, code, o, plen, ip, version, arrival = _record(d, pos, port, fmt, ffmt, ethk, ext6)
+        if status != U_OK and nxt == pos:  # the record itself is not read
+            return status, pos, frames, s, -1, 0, 0, 0, 0.0
         pos = nxt
+        if code == F_NO_FRAME:
+            continue
+        frames += 1
         if status != U_OK:
-            return status, pos, frames, s, -1, 0
+            return status, pos, frames, s, -1, 0, 0, 0, 0.0
         if code != F_DATAGRAM:
             skip[s, 0] = frames
             skip[s, 1] = code
             s += 1
             continue
-        return U_OK, pos, frames, s, o, plen
-    return U_OK, pos, frames, s, -1, 0
+        return U_OK, pos, frames, s, o, plen, ip, version, arrival
+    return U_OK, pos, frames, s, -1, 0, 0, 0, 0.0
 
 
 @njit(cache=True, _nrt=False)
-def scan_records(d, port, out_t, out_ip, out_port, out_off, out_len, out_frame, skip, res):
-    """Every record: datagrams to ``port`` into out_* (arrival, source address and port, payload offset and
-    length, 1-based record number), skipped frames into ``skip`` (record number, F_*).
+def scan_records(
+    d, port, fmt, ffmt, ethk, ext6, out_t, out_ip, out_ver, out_off, out_len, out_frame, skip, res
+):  # fmt: skip
+    """Every record: datagrams to ``port`` into out_* (arrival, IP header offset and version, payload
+    offset and length, 1-based record number), skipped frames into ``skip`` (record number, F_*).
     ``res``: (status U_*, records, datagrams, skipped)."""
-    pos = GLOBAL_HEADER_BYTES
+    pos = fmt[FMT_START]
     frames = 0
     k = 0
     s = 0
     while True:
-        status, pos, frames, s, o, plen = _next_datagram(d, pos, port, skip, frames, s)
+        status, pos, frames, s, o, plen, ip, version, arrival = _next_datagram(
+            d, pos, port, fmt, ffmt, ethk, ext6, skip, frames, s
+        )
         if o < 0:
             break
-        ip = o - 28
-        out_t[k] = _arrival(d, o)
-        out_ip[k] = (
-            (np.uint32(d[ip + 12]) << 24)
-            | (np.uint32(d[ip + 13]) << 16)
-            | (np.uint32(d[ip + 14]) << 8)
-            | np.uint32(d[ip + 15])
-        )
-        out_port[k] = _u16be(d, o - 8)
+        out_t[k] = arrival
+        out_ip[k] = ip
+        out_ver[k] = version
         out_off[k] = o
         out_len[k] = plen
         out_frame[k] = frames
@@ -284,13 +475,20 @@ def decode_many(d, offset, length, form_size, lo, hi, ok, stype, seq, n_int, n_d
 def ingest(
     d,
     port,
+    fmt,
+    ffmt,
+    ethk,
+    ext6,
     per_type,
     max_streams,
     form_size,
     lo,
     hi,
-    need_doubles,
     row_off,
+    row_len,
+    row_ip,
+    row_ver,
+    row_t,
     row_code,
     m_row,
     m_time,
@@ -312,18 +510,17 @@ def ingest(
     w,
     res,
 ):
-    """The fast replay's pass over the mapped capture ``d`` (see the module docstring).
+    """The fast replay's pass over the mapped capture ``d`` (see the module docstring; ``fmt``, ``ffmt``,
+    ``ext6`` as :func:`scan_records`).
 
-    Output arrays are sized by the caller for the most records the file can hold; ``st_key``/``st_last``
-    hold ``max_streams`` streams, ``w`` is a MAX_FIELDS scratch row; ``res`` (NRES int64) receives the
-    counts and flags (slots R_*)."""
+    Output arrays are sized by the caller for the most records the file can hold; ``st_key`` (3 keys
+    per stream) / ``st_last`` hold ``max_streams`` streams, ``w`` is a MAX_FIELDS scratch row; ``res``
+    (NRES int64) receives the counts and flags (slots R_*)."""
     for q in range(NRES):
         res[q] = 0
-    for q in range(16):
-        res[R_NO_EPOCH + q] = -1
     res[R_LAST_FIRST] = -1
     res[R_LAST_BREAK] = -1
-    pos = GLOBAL_HEADER_BYTES
+    pos = fmt[FMT_START]
     frames = 0
     k = 0  # datagrams to the port
     s = 0  # skipped frames
@@ -336,7 +533,9 @@ def ingest(
     q_hint = 0
     stopped = False
     while True:
-        status, pos, frames, s, o, plen = _next_datagram(d, pos, port, skip, frames, s)
+        status, pos, frames, s, o, plen, ip, version, arrival = _next_datagram(
+            d, pos, port, fmt, ffmt, ethk, ext6, skip, frames, s
+        )
         if o < 0:
             break
         k += 1
@@ -344,6 +543,10 @@ def ingest(
             continue
         good, t, sq, ni, nd = _decode_one(d, o, plen, form_size, lo, hi, w)
         row_off[r] = o
+        row_len[r] = plen
+        row_ip[r] = ip
+        row_ver[r] = version
+        row_t[r] = arrival
         if not good:
             row_code[r] = -1
             res[R_BAD] += 1
@@ -353,26 +556,28 @@ def ingest(
         res[R_TYPES + t] += 1
         # the stream table (listener.seqbuf's key: sender address and port, and the type if per type)
         if not overflow:
-            ip = o - 28
-            key = (
-                (_u16be(d, ip + 12) << 40)
-                | (_u16be(d, ip + 14) << 24)
-                | (_u16be(d, o - 8) << 8)
-                | ((t & 0xFF) if per_type else 0)
-            )
+            if version == 4:
+                k0 = np.int64(0)
+                k1 = _u32be(d, ip + 12)
+            else:
+                k0 = _u64be(d, ip + 8)
+                k1 = _u64be(d, ip + 16)
+            k2 = (np.int64(version) << 32) | (_u16be(d, o - 8) << 8) | ((t & 0xFF) if per_type else 0)
             q = -1
-            if q_hint < m and st_key[q_hint] == key:
+            if q_hint < m and st_key[q_hint, 2] == k2 and st_key[q_hint, 1] == k1 and st_key[q_hint, 0] == k0:
                 q = q_hint
             else:
                 for p in range(m):
-                    if st_key[p] == key:
+                    if st_key[p, 2] == k2 and st_key[p, 1] == k1 and st_key[p, 0] == k0:
                         q = p
                         break
             if q < 0:
                 if m == max_streams:
                     overflow = True
                 else:
-                    st_key[m] = key
+                    st_key[m, 0] = k0
+                    st_key[m, 1] = k1
+                    st_key[m, 2] = k2
                     st_last[m] = sq
                     res[R_LAST_FIRST] = r
                     q_hint = m
@@ -383,10 +588,6 @@ def ingest(
                 st_last[q] = sq
                 q_hint = q
         if t == 1 or t == 2 or t == 3 or t == 8:
-            arrival = _arrival(d, o)
-            has_epoch = nd == need_doubles[t]
-            if not has_epoch:
-                res[R_NO_EPOCH + t] = r
             j = nm
             m_row[j] = r
             m_time[j] = arrival
@@ -394,7 +595,7 @@ def ingest(
             v = vals[j]
             for q in range(NV):
                 v[q] = np.nan
-            # as tools.fast_pack._pack (values beyond the form are NaN in w)
+            # as tools.fast_pack._pack (values beyond the form are NaN in w: t_s is NaN without epoch)
             if t == 1:
                 for q in range(6):
                     v[q] = w[q]
@@ -423,7 +624,7 @@ def ingest(
         elif t == 9:
             s_row[ns] = r
             s_ts[ns] = w[0]
-            s_time[ns] = _arrival(d, o)
+            s_time[ns] = arrival
             ns += 1
         r += 1
         if t == 10:
@@ -442,33 +643,121 @@ def ingest(
 
 
 # ---------------------------------------------------------------------------------------- Python side
+@dataclass(frozen=True)
+class MappedCapture:
+    """A capture file memory-mapped, with how dpkt reads it (the walk's format descriptor)."""
+
+    data: np.ndarray  #: the whole file (uint8)
+    fmt: np.ndarray  #: int64 slots FMT_*
+    ffmt: np.ndarray  #: float64 slots FF_*
+    ethk: np.ndarray  #: uint8 (2, 65536): the Ethernet type table (E_*)
+    ext6: np.ndarray  #: bool (256,): dpkt.ip6's extension header numbers
+
+    @property
+    def args(self) -> tuple:
+        return self.fmt, self.ffmt, self.ethk, self.ext6
+
+
+def _ethernet_table() -> np.ndarray:
+    """How dpkt.ethernet reads each Ethernet type (E_*): row 0 a frame's own type, row 1 the type after
+    its VLAN tags. A type above 1500 that dpkt does not parse leaves the payload as bytes (no IP
+    packet: skipped as not_ip by the exact reader); ARP is parsed into an ARP packet or, cut short, left
+    as bytes, never an error; the other types dpkt parses, 802.3 lengths (1500 and below: LLC, ISL,
+    raw 802.3) and MPLS label stacks are left to the exact reader."""
+    import dpkt
+
+    eth = dpkt.ethernet
+    parsed = set(eth.Ethernet._typesw)
+    inner = np.full(65536, E_NOT_IP, dtype=np.uint8)
+    inner[sorted(parsed)] = E_REFUSE
+    inner[eth.ETH_TYPE_ARP] = E_NOT_IP
+    inner[0] = E_REFUSE  # (dpkt then falls back to the outer type)
+    inner[eth.ETH_TYPE_IP] = E_IP4
+    inner[eth.ETH_TYPE_IP6] = E_IP6
+    outer = inner.copy()
+    outer[: 1500 + 1] = E_REFUSE
+    outer[[eth.ETH_TYPE_MPLS, eth.ETH_TYPE_MPLS_MCAST]] = E_REFUSE
+    outer[sorted(eth._ETH_TYPES_QINQ)] = E_VLAN
+    return np.stack((outer, inner))
+
+
+def _ext6_table() -> np.ndarray:
+    import dpkt
+
+    table = np.zeros(256, dtype=np.bool_)
+    table[list(dpkt.ip6.EXT_HDRS)] = True
+    return table
+
+
+def _pcapng_format(path: Path):
+    """(big-endian, divisor, tsoffset, link type, offset of the first block after the first IDB) as
+    dpkt.pcapng.Reader sets them up (it is run on the file for that), or a reason string."""
+    import dpkt
+
+    try:
+        with open(path, "rb") as fh:
+            reader = dpkt.pcapng.Reader(fh)
+            start = fh.tell()
+    except (ValueError, OSError, dpkt.dpkt.NeedData, dpkt.dpkt.UnpackError) as exc:
+        return f"pcapng header not read: {exc}"
+    # dpkt's reader attributes for what it applies to every packet (no public accessor in dpkt)
+    big = not reader._Reader__le
+    return big, float(reader._divisor), int(reader._tsoffset), int(reader.datalink()), start
+
+
 def map_capture(path):
-    """The file memory-mapped (uint8) after its global header is checked, or why the fast path cannot
-    read it (the reasons of :func:`tools.fast_pcap.scan_capture`)."""
+    """The file memory-mapped (uint8) with its format, as dpkt reads it: a :class:`MappedCapture`, or why
+    the fast path cannot read it (the reasons of :func:`tools.fast_pcap.scan_capture`)."""
     p = Path(path)
     try:
         size = p.stat().st_size
     except OSError as exc:
         return f"cannot stat: {exc.strerror or exc}"
-    if size < GLOBAL_HEADER_BYTES:
-        return "not a classic pcap"
     try:
-        data = np.memmap(p, dtype=np.uint8, mode="r")
-    except (OSError, ValueError) as exc:
-        return f"cannot map: {exc}"
-    magic = int(data[0]) | int(data[1]) << 8 | int(data[2]) << 16 | int(data[3]) << 24
-    if magic != PCAP_MAGIC_US_LE:
-        return "not a little-endian microsecond classic pcap (pcapng, nanosecond or big-endian)"
-    linktype = int(data[20]) | int(data[21]) << 8 | int(data[22]) << 16 | int(data[23]) << 24
+        with open(p, "rb") as fh:
+            head = fh.read(GLOBAL_HEADER_BYTES)
+    except OSError as exc:
+        return f"cannot map: {exc.strerror or exc}"
+    fmt = np.zeros(NFMT, dtype=np.int64)
+    ffmt = np.zeros(NFFMT)
+    form = CLASSIC_MAGICS.get(head[:4])
+    if form is not None and len(head) == GLOBAL_HEADER_BYTES:
+        big, nano = form
+        linktype = int.from_bytes(head[20:24], "big" if big else "little")
+        fmt[FMT_BIG], fmt[FMT_NANO], fmt[FMT_START] = big, nano, GLOBAL_HEADER_BYTES
+    elif int.from_bytes(head[:4], "little") == PCAPNG_SHB:
+        got = _pcapng_format(p)
+        if isinstance(got, str):
+            return got
+        big, divisor, tsoffset, linktype, start = got
+        if not (0.0 < divisor < float("inf")) or abs(tsoffset) >= 2**53:
+            return f"pcapng timestamp resolution {divisor} or offset {tsoffset} (not read by the fast path)"
+        fmt[FMT_PCAPNG], fmt[FMT_BIG], fmt[FMT_START] = 1, big, start
+        ffmt[FF_DIVISOR], ffmt[FF_OFFSET] = divisor, float(tsoffset)
+    else:
+        return "not a classic pcap or pcapng file the fast path reads (modified pcap, or not a capture)"
     if linktype != DLT_EN10MB:
         return f"link type {linktype} (only Ethernet is read by the fast path)"
-    return data
+    try:
+        data = np.memmap(p, dtype=np.uint8, mode="r") if size else np.zeros(0, dtype=np.uint8)
+    except (OSError, ValueError) as exc:
+        return f"cannot map: {exc}"
+    return MappedCapture(data, fmt, ffmt, _ethernet_table(), _ext6_table())
 
 
 def record_capacity(data) -> int:
-    """Most records the mapped file can hold (every record is at least 16 + 34 bytes)."""
+    """Most records the mapped file can hold (every record is at least 16 + 34 bytes; a pcapng packet
+    block 32 + 34)."""
     size = data.shape[0]
-    return max(1, (size - GLOBAL_HEADER_BYTES) // (RECORD_HEADER_BYTES + ETH_HEADER_BYTES + 20) + 1)
+    return max(1, size // (RECORD_HEADER_BYTES + ETH_HEADER_BYTES + 20) + 1)
+
+
+def _be_int(d, at: np.ndarray, nbytes: int) -> np.ndarray:
+    """The ``nbytes`` bytes at each offset ``at`` of ``d`` as one big-endian int64 (wrapping: a key)."""
+    k = np.zeros(at.shape[0], dtype=np.int64)
+    for b in range(nbytes):
+        k = (k << 8) | d[at + b].astype(np.int64)
+    return k
 
 
 @dataclass(frozen=True)
@@ -478,6 +767,10 @@ class Ingested:
     data: np.ndarray  #: the mapped file (uint8)
     res: np.ndarray  #: scalar results (slots R_*)
     row_off: np.ndarray  #: payload offset per row (rows: datagrams up to the first valid STOP)
+    row_len: np.ndarray  #: payload length [bytes]
+    row_ip: np.ndarray  #: IP header offset
+    row_ver: np.ndarray  #: IP version (4 or 6; int8)
+    row_t: np.ndarray  #: arrival [s] (as dpkt computes the record's timestamp)
     row_code: np.ndarray  #: SENSOR_TYPE of a valid row, -1 for one the codec rejects (int8)
     m_row: np.ndarray  #: measurements: row index (int64)
     m_time: np.ndarray  #: arrival [s]
@@ -499,37 +792,54 @@ class Ingested:
     def rows(self) -> int:
         return int(self.res[R_ROWS])
 
+    def source(self, r: int) -> tuple[str, int]:
+        """(host, port) of row r as the exact reader writes it (socket.inet_ntop of the source address)."""
+        ip = int(self.row_ip[r])
+        if self.row_ver[r] == 4:
+            host = socket.inet_ntop(socket.AF_INET, bytes(self.data[ip + 12 : ip + 16]))
+        else:
+            host = socket.inet_ntop(socket.AF_INET6, bytes(self.data[ip + 8 : ip + 24]))
+        o = int(self.row_off[r])
+        return host, int(self.data[o - 8]) << 8 | int(self.data[o - 7])
+
+    def source_ids(self, rows: np.ndarray):
+        """(index per row into the list, [((host, port), SENSOR_TYPE)] of the distinct pairs) for valid
+        ``rows``, vectorised as :meth:`first_sources`."""
+        if rows.size == 0:
+            return np.zeros(0, dtype=np.int64), []
+        _, first, inv = self._pair_keys(rows)
+        return inv, [(self.source(int(r)), int(self.row_code[r])) for r in rows[first].tolist()]
+
+    def _pair_keys(self, rows: np.ndarray):
+        d = self.data
+        ip = self.row_ip[rows]
+        v6 = self.row_ver[rows] == 6
+        o = self.row_off[rows]
+        port_type = (_be_int(d, o - 8, 2) << 8) | self.row_code[rows]
+        if not v6.any():  # one int64 key: address, port, type (np.unique on rows is much slower)
+            key1 = (_be_int(d, ip + 12, 4) << 24) | port_type
+            return np.unique(key1, return_index=True, return_inverse=True)
+        key = np.empty((rows.size, 3), dtype=np.int64)  # the walk's stream key, with the type
+        key[:, 0] = np.where(v6, _be_int(d, ip + 8, 8), 0)
+        key[:, 1] = np.where(v6, _be_int(d, ip + 16, 8), _be_int(d, ip + 12, 4))
+        key[:, 2] = (self.row_ver[rows].astype(np.int64) << 32) | port_type
+        u, first, inv = np.unique(key, axis=0, return_index=True, return_inverse=True)
+        return u, first, inv.reshape(-1)
+
     def first_sources(self, start: int) -> list[tuple[int, tuple[str, int], int]]:
         """(row, (host, port), SENSOR_TYPE) of the first valid row of each (source, type) pair from row
         ``start`` on, in row order (for the sender table: listener.senders), vectorised."""
         rows = np.flatnonzero(self.row_code[start:] >= 0) + start
         if rows.size == 0:
             return []
-        d = self.data
-        ip = self.row_off[rows] - PAYLOAD_AFTER_RECORD + RECORD_HEADER_BYTES + ETH_HEADER_BYTES
-        host = np.zeros(rows.size, dtype=np.int64)
-        for b in range(4):
-            host = (host << 8) | d[ip + 12 + b].astype(np.int64)
-        port = (d[ip + 20].astype(np.int64) << 8) | d[ip + 21].astype(np.int64)
-        key = (host << 24) | (port << 8) | self.row_code[rows].astype(np.int64)
-        _, first = np.unique(key, return_index=True)
-        out = []
-        for i in np.sort(first).tolist():
-            h = int(host[i])
-            addr = (".".join(str((h >> s) & 0xFF) for s in (24, 16, 8, 0)), int(port[i]))
-            out.append((int(rows[i]), addr, int(self.row_code[rows[i]])))
-        return out
+        _, first, _ = self._pair_keys(rows)
+        firsts = rows[np.sort(first)].tolist()
+        return [(r, self.source(r), int(self.row_code[r])) for r in firsts]
 
     def datagram(self, r: int):
-        """(arrival, (host, port), payload) of row r, read from the headers in front of its payload."""
+        """(arrival, (host, port), payload) of row r."""
         o = int(self.row_off[r])
-        head = bytes(self.data[o - PAYLOAD_AFTER_RECORD : o])
-        sec, usec = struct.unpack_from("<II", head, 0)
-        ip = RECORD_HEADER_BYTES + ETH_HEADER_BYTES
-        (ip_len,) = struct.unpack_from(">H", head, ip + 2)
-        (port,) = struct.unpack_from(">H", head, ip + 20)
-        host = ".".join(str(b) for b in head[ip + 12 : ip + 16])
-        return sec + usec / 1e6, (host, port), bytes(self.data[o : o + ip_len - 28])
+        return float(self.row_t[r]), self.source(r), bytes(self.data[o : o + int(self.row_len[r])])
 
 
 def ingest_capture(path, port: int, per_type: bool, max_streams: int, tables):
@@ -537,12 +847,17 @@ def ingest_capture(path, port: int, per_type: bool, max_streams: int, tables):
     file is not one the fast path reads (as :func:`tools.fast_pcap.scan_capture` words it).
 
     ``tables``: (form_size, lo, hi) of :mod:`tools.fast_decode`."""
-    data = map_capture(path)
-    if isinstance(data, str):
-        return data
+    mapped = map_capture(path)
+    if isinstance(mapped, str):
+        return mapped
+    data = mapped.data
     cap = record_capacity(data)
     # sized for the most records the file can hold; untouched pages of np.empty are never mapped
     row_off = np.empty(cap, dtype=np.int64)
+    row_len = np.empty(cap, dtype=np.int64)
+    row_ip = np.empty(cap, dtype=np.int64)
+    row_ver = np.empty(cap, dtype=np.int8)
+    row_t = np.empty(cap)
     row_code = np.empty(cap, dtype=np.int8)
     m_row = np.empty(cap, dtype=np.int64)
     m_time = np.empty(cap)
@@ -560,21 +875,22 @@ def ingest_capture(path, port: int, per_type: bool, max_streams: int, tables):
     s_time = np.empty(cap)
     skip = np.empty((cap, 2), dtype=np.int64)
     streams = max(int(max_streams), 0)
-    st_key = np.empty(max(streams, 1), dtype=np.int64)
+    st_key = np.empty((max(streams, 1), 3), dtype=np.int64)
     st_last = np.empty(max(streams, 1), dtype=np.int64)
     w = np.empty(MAX_FIELDS)
     res = np.zeros(NRES, dtype=np.int64)
     form_size, lo, hi = tables
     ingest(
-        data, int(port), bool(per_type), streams, form_size, lo, hi, EPOCH_DOUBLES_BY_TYPE,
-        row_off, row_code, m_row, m_time, kind, t_s, vals, g_row, g_meas, g_time, g_lat, g_lon, g_fq,
-        s_row, s_ts, s_time, skip, st_key, st_last, w, res,
+        data, int(port), *mapped.args, bool(per_type), streams, form_size, lo, hi,
+        row_off, row_len, row_ip, row_ver, row_t, row_code, m_row, m_time, kind, t_s, vals,
+        g_row, g_meas, g_time, g_lat, g_lon, g_fq, s_row, s_ts, s_time, skip, st_key, st_last, w, res,
     )  # fmt: skip
     if res[R_STATUS] != U_OK:
         return f"record {int(res[R_FRAMES])}: {UNSUPPORTED_REASONS[int(res[R_STATUS])]}"
     r, nm, ng, ns = (int(res[x]) for x in (R_ROWS, R_MEAS, R_GPS, R_STROBES))
     return Ingested(
-        data, res, row_off[:r], row_code[:r], m_row[:nm], m_time[:nm], kind[:nm], t_s[:nm], vals[:nm],
+        data, res, row_off[:r], row_len[:r], row_ip[:r], row_ver[:r], row_t[:r], row_code[:r],
+        m_row[:nm], m_time[:nm], kind[:nm], t_s[:nm], vals[:nm],
         g_row[:ng], g_meas[:ng], g_time[:ng], g_lat[:ng], g_lon[:ng], g_fq[:ng],
         s_row[:ns], s_ts[:ns], s_time[:ns], skip[: int(res[R_SKIPPED])],
     )  # fmt: skip

@@ -27,14 +27,59 @@ length) as ``listener.pipeline.Pipeline._maybe_output`` does.
 
 from __future__ import annotations
 
+import hashlib
 import math
+import os
+from pathlib import Path
 
+import numba
 import numpy as np
 from numba import njit
 
+import sfa
 from sfa import gnss_noise
 from sfa import kernels as K
 from sfa import layout as L
+
+
+def source_key(paths) -> str:
+    """A hash of numba's version and of the files' names and contents (20 hex digits)."""
+    h = hashlib.sha256(numba.__version__.encode())
+    for path in paths:
+        h.update(Path(path).name.encode() + b"\0" + Path(path).read_bytes() + b"\0")
+    return h.hexdigest()[:20]
+
+
+def _keyed_cache_dir() -> str | None:
+    """A numba disk-cache directory for this module's loops keyed on the sources they are built from.
+
+    Numba keys a cached function on its own file only; these loops inline ``sfa.kernels`` and read
+    ``sfa.layout``'s slots at compile time, so a cache keyed on this file alone would go stale when the
+    filter changes. The directory's name is a hash of every ``sfa/*.py`` and of this file: any edit
+    there selects a new, empty directory (the loops compile once, about 25 s, then load in well under
+    a second). Under ``numba.config.CACHE_DIR`` (``NUMBA_CACHE_DIR``) if set, else beside this file in
+    ``__pycache__``; None (no disk cache, compiled per process) where that cannot be written."""
+    key = source_key([*sorted(Path(sfa.__file__).parent.glob("*.py")), Path(__file__)])
+    base = numba.config.CACHE_DIR or str(Path(__file__).parent / "__pycache__")
+    where = os.path.join(base, f"fast_loop-{key}")
+    try:
+        os.makedirs(where, exist_ok=True)
+        probe = os.path.join(where, f".probe-{os.getpid()}")
+        with open(probe, "w"):
+            pass
+        os.remove(probe)
+    except OSError:
+        return None
+    return where
+
+
+#: where the loops below are cached (numba reads config.CACHE_DIR when a function is decorated, so it is
+#: set around their definitions and put back at the end of the module)
+CACHE_DIR = _keyed_cache_dir()
+_CACHE = CACHE_DIR is not None
+_CACHE_DIR_BEFORE = numba.config.CACHE_DIR
+if _CACHE:
+    numba.config.CACHE_DIR = CACHE_DIR
 
 #: slots of run_segment's ``ost`` (int64[NOST]): next estimate row, estimates not sent as stale, last
 #: sent measurement (-1: none yet), its reason bits, smallest and largest line id sent
@@ -46,14 +91,14 @@ STOP_UNDONE = 2  #: measurement i was stepped, then undone (state as before it)
 STOP_AFTER = 3  #: measurement i was processed up to TrackFilter._spawn_branches, which the caller runs
 
 
-@njit(cache=False, _nrt=False)
+@njit(cache=_CACHE, _nrt=False)
 def _copy1(dst, src):
     """dst[:] = src element by element (the compiled loop runs without numba's allocator, _nrt=False)."""
     for i in range(dst.shape[0]):
         dst[i] = src[i]
 
 
-@njit(cache=False, _nrt=False)
+@njit(cache=_CACHE, _nrt=False)
 def _copy2(dst, src):
     """dst[:, :] = src element by element."""
     for i in range(dst.shape[0]):
@@ -61,7 +106,7 @@ def _copy2(dst, src):
             dst[i, j] = src[i, j]
 
 
-@njit(cache=False, _nrt=False, error_model="numpy")  # reads sfa.layout slots: no disk cache (stale indices)
+@njit(cache=_CACHE, _nrt=False, error_model="numpy")  # reads sfa.layout slots (keyed cache)
 def _prune(order, ns, X, AUX, length_m, window, prune_ratio, switch_ratio, max_hyps, keep, key):
     """TrackFilter._prune over the hypotheses ``order[:ns[0]]``, reported ``order[ns[1]]`` (finite scores)."""
     nh = ns[0]
@@ -134,7 +179,7 @@ def _prune(order, ns, X, AUX, length_m, window, prune_ratio, switch_ratio, max_h
     ns[0] = kept
 
 
-@njit(cache=False, _nrt=False, error_model="numpy")  # reads sfa.layout slots: no disk cache (stale indices)
+@njit(cache=_CACHE, _nrt=False, error_model="numpy")  # reads sfa.layout slots (keyed cache)
 def _score(order, nh, AUX, slot, cap):
     """TrackFilter._score's update (before its prune); False when a score is no longer finite."""
     ok = True
@@ -147,7 +192,7 @@ def _score(order, nh, AUX, slot, cap):
     return ok
 
 
-@njit(cache=False, _nrt=False, error_model="numpy")  # reads sfa.layout slots: no disk cache (stale indices)
+@njit(cache=_CACHE, _nrt=False, error_model="numpy")  # reads sfa.layout slots (keyed cache)
 def _spawn_reversals(order, ns, X, PP, AUX, CNT, MEM, cfg):
     """TrackFilter._spawn_reversals' additions (mirrored hypotheses); True when any was added."""
     nh = ns[0]
@@ -192,7 +237,7 @@ def _spawn_reversals(order, ns, X, PP, AUX, CNT, MEM, cfg):
     return total > nh
 
 
-@njit(cache=False, _nrt=False, error_model="numpy")  # reads sfa.layout slots: no disk cache
+@njit(cache=_CACHE, _nrt=False, error_model="numpy")  # reads sfa.layout slots (keyed cache)
 def run_segment(
     kind,
     t,
@@ -395,7 +440,7 @@ def run_segment(
     return n, DONE
 
 
-@njit(cache=False, _nrt=False)
+@njit(cache=_CACHE, _nrt=False)
 def put_row(e_f, e_i, ost, i, epoch, s, arrival, speed, sig, status, bits, line_id, seq0, z):
     """One sent output, for measurement i, into the estimate columns at row ost[O_ROW] (see run_segment)."""
     k = ost[O_ROW]
@@ -419,7 +464,7 @@ def put_row(e_f, e_i, ost, i, epoch, s, arrival, speed, sig, status, bits, line_
     ost[O_ROW] = k + 1
 
 
-@njit(cache=False)  # calls sfa.kernels.interp_at: compiled per process like run_segment
+@njit(cache=_CACHE)  # calls sfa.kernels.interp_at (keyed cache)
 def interp_many(ts, arr, s, valid):
     """``sfa.kernels.interp_at`` per element where ``valid`` and ts[0] <= s <= ts[-1]; NaN elsewhere.
 
@@ -435,7 +480,7 @@ def interp_many(ts, arr, s, valid):
     return out
 
 
-@njit(cache=False)
+@njit(cache=_CACHE)
 def run_replay_loop(
     kind, t, vals, x, P, aux, cnt, mem, cfg, ts, te, tn, tg, tk, last_epoch, last_s, out_f, out_i
 ):
@@ -481,3 +526,6 @@ def run_replay_loop(
                 outputs += 1
         out_i[i, 3] = send
     return outputs
+
+
+numba.config.CACHE_DIR = _CACHE_DIR_BEFORE

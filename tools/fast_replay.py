@@ -2,9 +2,9 @@
 
 ``tools.replay.replay_capture`` drives the listener's pipeline object per datagram (a few thousand
 datagrams per second). On a clean capture almost all of that work is bookkeeping whose outcome is
-known in advance: every stream in order, every measurement dated by its own epoch, the merge
-releasing each measurement at once (``merge.hold_s = 0``). :func:`fast_replay` checks that this is so
-and then runs the capture in compiled code:
+known in advance: every stream in order, every measurement dated by its own epoch or by the STROBE
+clock at its arrival, the merge releasing each measurement at once (``merge.hold_s = 0``).
+:func:`fast_replay` checks that this is so and then runs the capture in compiled code:
 
 1. one compiled pass over the memory-mapped pcap (:mod:`tools.fast_ingest`; classic pcap, Ethernet,
    IPv4, UDP at fixed offsets) walks the records, decodes every INPUT payload against listener.codec's
@@ -13,10 +13,15 @@ and then runs the capture in compiled code:
    rejected datagrams get their reason from ``listener.codec`` itself,
 2. the start of the capture goes through the exact pipeline, datagram by datagram, only until every
    sender's stream has started and nothing is held (a handful of datagrams),
-3. the rest is checked (each stream continues in sequence, no gap, no reordering, epochs present: the
-   ingest pass's notes), and one compiled pass advances the STROBE clock and dates the measurements
-   against it (:func:`tools.fast_clock.run_clock`: the sensor-set "now" of every arrival, for the
-   listener's ``epoch_future`` and stale-output rules),
+3. the rest is checked (each stream continues in sequence: the ingest pass's notes; where one does
+   not, the listener's own sequence buffers, the prefix pipeline's ``StreamTable``, take every
+   datagram as ``Pipeline.receive`` and its timer would, :func:`_sequence`, and their releases go on
+   in the merge's order), and one compiled pass advances the STROBE clock and dates the measurements
+   against it
+   (:func:`tools.fast_clock.run_clock`: the sensor-set "now" of every arrival, which dates a
+   measurement without its epoch, and the listener's ``epoch_future`` and stale-output rules; a
+   start with measurements before the first STROBE goes through the exact pipeline up to that
+   STROBE, which empties the listener's undated queue),
 4. GNSS fixes go to the track's frame; rejected measurements are dropped from the packed rows,
 5. the filter runs from the exact pipeline's filter object: compiled (:func:`tools.fast_loop.run_segment`:
    the kernels plus TrackFilter's scoring, pruning and standstill reversal hypotheses) while every
@@ -38,6 +43,8 @@ tests/test_fast_replay.py checks field by field, on a capture with junctions too
 
 from __future__ import annotations
 
+import copy
+import dataclasses
 import math
 import sys
 import time
@@ -49,7 +56,7 @@ from numba import njit
 
 from listener.pipeline import to_measurement
 from sfa import layout as L
-from sfa.layout import Outcome
+from sfa.layout import FilterStatus, Outcome
 from tools.fast_loop import (
     NOST,
     O_BITS,
@@ -281,6 +288,7 @@ class _Prefix:
         self.est_rows: list[tuple] = []
         self.upd: list[tuple] = []
         self.gps_rows: list[tuple] = []
+        self.reason_rows: list[int] = []  # reason bits of each output row (tools.replay's reasons)
         self.by_seq: dict = {}  # SEQ -> the estimate last encoded with it
         self.fresh: deque[int] = deque()  # SEQs encoded as new estimates, not yet seen in an output
         self.pipe.on_output = self._on_output
@@ -294,6 +302,7 @@ class _Prefix:
 
     def record(self, outputs, now) -> None:
         from listener.codec import decode_output
+        from tools.estimates_schema import reason_bits
         from tools.replay import estimate_row
 
         for payload in outputs:
@@ -306,6 +315,7 @@ class _Prefix:
             else:
                 retransmit = 1
             self.est_rows.append(estimate_row(msg, est, retransmit, now))
+            self.reason_rows.append(reason_bits(est.reasons))
 
     def feed(self, t, addr, payload, gps) -> None:
         pipe = self.pipe
@@ -319,32 +329,134 @@ class _Prefix:
         self.record(pipe.receive(payload, addr, t), t)
 
     def ready(self) -> bool:
-        """Hand-over point: nothing held in sequence buffers, merge or undated queue, no stream irregular
-        (the filter may be in any state: the fast path runs TrackFilter itself where it must)."""
+        """Hand-over point: nothing held in the sequence buffers, the merge or the undated queue (the
+        filter may be in any state: the fast path runs TrackFilter itself where it must; the sequence
+        buffers go on as they are, in the listener's own objects, where the rest needs them)."""
         pipe = self.pipe
         if pipe.stopped or pipe.streams.next_deadline() is not None:
             return False
+        held = pipe.streams.stats.totals
         m = pipe.metrics()
-        seq = m["sequencing"]
-        clean = all(
-            seq[k] == 0
-            for k in (
-                "reordered",
-                "duplicates",
-                "lost",
-                "late",
-                "resyncs",
-                "overflow",
-                "probation_drops",
-                "pending",
-            )
-        )
         return (
-            clean
+            held.pending == 0
+            and held.probation_held == 0
+            and held.jump_held == 0
             and m["merge"]["pending"] == 0
             and m["clock"]["undated_pending"] == 0
-            and seq["evictions"] == 0
         )
+
+
+#: sequence-buffer events the compiled path does not follow: a number given back (``reopen``, after a
+#: content rejection); every other decision (reordering, duplicates, losses, late items, restarts and
+#: probation, forward jumps held as suspects, overflow) is the buffers' own, taken in _sequence
+_SEQ_NOT_FOLLOWED = ("reopened",)
+
+
+@dataclass(frozen=True)
+class _Sequenced:
+    """What the listener's sequence buffers released after the prefix, in release order."""
+
+    m_idx: np.ndarray  #: measurement indices (into the ingest's arrays) in release order
+    m_pos: np.ndarray  #: their positions in the release order (interleaving with the STROBEs)
+    m_now: np.ndarray  #: their release times (arrival, or the end of a hold)
+    m_batch: np.ndarray  #: the release (push, timer poll or flush) each came out of
+    s_idx: np.ndarray  #: STROBE indices in release order
+    s_pos: np.ndarray
+    s_batch: np.ndarray
+
+    def merge_reason(self, t_s: np.ndarray, n_future: int) -> str:
+        """Why the merge could see the release otherwise than :meth:`merge_order` orders it (a STROBE
+        released after measurements of the same release: they are drained on the clock it leaves), or a
+        content rejection give a SEQ back (``reopen``); "" when it cannot."""
+        if n_future:
+            return "epoch_future rejections with sequence repair (the SEQ is given back: exact replay)"
+        if not np.all(np.isfinite(t_s)):
+            return "a measurement not dated after the hand-over"
+        if self.s_batch.size and self.m_batch.size:
+            # a STROBE released with measurements before it changes the clock their release is judged on
+            ub, first = np.unique(self.m_batch, return_index=True)  # (m_pos ascends: first = smallest)
+            at = np.minimum(np.searchsorted(ub, self.s_batch), ub.size - 1)
+            shared = ub[at] == self.s_batch
+            if np.any(shared & (self.m_pos[first[at]] < self.s_pos)):
+                return "a STROBE released after measurements in one release (the stale rule's clock)"
+        return ""
+
+    def merge_order(self, t_s: np.ndarray) -> np.ndarray:
+        """The filter's order of the released measurements: ``Pipeline._dispatch`` dates a release's
+        measurements and ``_drain`` hands them over by (epoch, push order) from the merge's heap, which
+        every drain empties (``merge.hold_s = 0``: the horizon is at least the newest epoch); so within
+        each release by epoch, ties in release order, releases in turn."""
+        return np.lexsort((self.m_pos, t_s, self.m_batch))
+
+
+def _sequence(got, pipe, h: int, n: int, stopped: bool, per_type: bool):
+    """The rest of the capture through the prefix pipeline's own sequence buffers (``pipe.streams``,
+    listener.seqbuf.StreamTable), exactly as ``Pipeline.receive`` pushes each valid datagram and its
+    timer polls them at their deadlines (the replay fires timers at their own times before the next
+    datagram), with the STOP's flush and the flush at the end: a :class:`_Sequenced`, or why the
+    exact replay is needed."""
+    from listener.seqbuf import stream_key
+
+    streams = pipe.streams
+    before = streams.stats
+    rows = np.flatnonzero(got.row_code[h:n] >= 0) + h
+    inv, sources = got.source_ids(rows)
+    keys = [stream_key(addr, stype, per_type) for addr, stype in sources]
+    d = got.data
+    o = got.row_off[rows]
+    seqs = (d[o + 1].astype(np.int64) | (d[o + 2].astype(np.int64) << 8)).tolist()
+    times = got.row_t[rows].tolist()
+    key_of = [keys[i] for i in inv.tolist()]
+    rel: list[int] = []
+    rel_t: list[float] = []
+    rel_b: list[int] = []
+    batch = 0
+    stop_row = n - 1 if stopped else -1
+    for r, k, sq, t in zip(rows.tolist(), key_of, seqs, times, strict=True):
+        nd = streams.next_deadline()
+        while nd is not None and nd <= t:
+            out = streams.poll(nd)
+            if out:
+                rel.extend(out)
+                rel_t.extend([nd] * len(out))
+                rel_b.extend([batch] * len(out))
+                batch += 1
+            nd = streams.next_deadline()
+        out = streams.push(k, sq, r, t)
+        if out:
+            rel.extend(out)
+            rel_t.extend([t] * len(out))
+            rel_b.extend([batch] * len(out))
+            batch += 1
+        if r == stop_row:
+            if r not in out:
+                return "a STOP held by a sequence buffer (exact replay)"
+            last_t = t
+            break
+    else:
+        last_t = float(got.row_t[n - 1])
+    out = streams.flush()  # the STOP's, or the end's (Pipeline.flush)
+    rel.extend(out)
+    rel_t.extend([last_t] * len(out))
+    rel_b.extend([batch] * len(out))
+    after = streams.stats
+    if after.evictions != before.evictions:
+        return "a sequence-buffer stream evicted (more senders than input.max_streams)"
+    for name in _SEQ_NOT_FOLLOWED:
+        if getattr(after.totals, name) != getattr(before.totals, name):
+            return f"sequence buffers: {name.replace('_', ' ')} (exact replay)"
+    rel_a = np.array(rel, dtype=np.int64)
+    pos = np.arange(rel_a.size)
+    meas_of = np.full(n, -1, dtype=np.int64)
+    meas_of[got.m_row] = np.arange(got.m_row.size)
+    strobe_of = np.full(n, -1, dtype=np.int64)
+    strobe_of[got.s_row] = np.arange(got.s_row.size)
+    m = meas_of[rel_a]
+    s = strobe_of[rel_a]
+    ism, iss = m >= 0, s >= 0
+    t_a = np.array(rel_t, dtype=np.float64)
+    b_a = np.array(rel_b, dtype=np.int64)
+    return _Sequenced(m[ism], pos[ism], t_a[ism], b_a[ism], s[iss], pos[iss], b_a[iss])
 
 
 def _senders_reason(got, pipe, h: int) -> str:
@@ -454,7 +566,6 @@ def _replay_ingested(got, track, options, ingest_s: float = 0.0):
         R_FRAMES,
         R_LAST_BREAK,
         R_LAST_FIRST,
-        R_NO_EPOCH,
         R_STOP_FRAME,
         R_STOPPED,
         R_STREAMS,
@@ -478,6 +589,14 @@ def _replay_ingested(got, track, options, ingest_s: float = 0.0):
         return None, _info(False, "more streams than the listener tracks", 0)
     # the exact pipeline runs until every stream has started (start-up hold released)
     min_prefix = int(res[R_LAST_FIRST]) + 1
+    # a measurement without its epoch before the first STROBE waits in the listener's undated queue
+    # (Pipeline._date, clock.max_pending_undated) until that STROBE dates it: such a start goes through
+    # the exact pipeline up to and including the first STROBE (after it the clock always has one)
+    undated = np.isnan(got.t_s)
+    first_undated = int(got.m_row[int(np.argmax(undated))]) if undated.any() else n
+    first_strobe = int(got.s_row[0]) if got.s_row.size else n
+    if first_undated < first_strobe:
+        min_prefix = max(min_prefix, first_strobe + 1)
 
     # 1. exact prefix
     prefix = _Prefix(track, options)
@@ -507,34 +626,67 @@ def _replay_ingested(got, track, options, ingest_s: float = 0.0):
 
     # 2. the rest must be a continuation the pipeline releases at once, in order (the ingest pass noted
     # the last datagram breaking each rule)
-    for t in (1, 2, 3, 8):
-        if res[R_NO_EPOCH + t] >= h:
-            return None, _info(False, f"{_TYPE_NAME[t]} datagrams without epoch (need STROBE dating)", h)
-    if res[R_LAST_BREAK] >= h:
-        why = "a stream with a gap, a duplicate or reordering (needs the sequence buffer)"
-        return None, _info(False, why, h)
+    j0 = int(np.searchsorted(got.m_row, h))
+    s0 = int(np.searchsorted(got.s_row, h))
+    if not pipe.clock.synced and undated[j0:].any():
+        # the clock has no STROBE yet (the prefix's were rejected by the sender table, or come later):
+        # a measurement without epoch before the next STROBE would wait in the undated queue
+        nxt_strobe = int(got.s_row[s0]) if s0 < got.s_row.size else n
+        if int(got.m_row[j0 + int(np.argmax(undated[j0:]))]) < nxt_strobe:
+            why = "measurements without epoch before any STROBE dates them (the undated queue)"
+            return None, _info(False, why, h)
     why = _senders_reason(got, pipe, h)
     if why:
         return None, _info(False, why, h)
     if not clock_supported():
         return None, _info(False, "Python >= 3.12 sums floats compensated (STROBE clock fit)", h)
-    j0 = int(np.searchsorted(got.m_row, h))
     g0 = int(np.searchsorted(got.g_row, h))
-    s0 = int(np.searchsorted(got.s_row, h))
-    mrows, m_time, kind, t_s, vals = (a[j0:] for a in (got.m_row, got.m_time, got.kind, got.t_s, got.vals))
+    seq = None
+    if res[R_LAST_BREAK] >= h:  # a gap, duplicate or reordering: the listener's own sequence buffers
+        seq = _sequence(got, pipe, h, n, bool(res[R_STOPPED]), options.config.input.per_type_sequence)
+        if isinstance(seq, str):
+            return None, _info(False, seq, h)
+        undated_rel = np.isnan(got.t_s[seq.m_idx])
+        n_by_strobe = int(np.count_nonzero(undated_rel))
+        mrows, m_time, kind, t_s, vals = (
+            a[seq.m_idx] for a in (got.m_row, got.m_time, got.kind, got.t_s, got.vals)
+        )
+        m_pos, m_now = seq.m_pos, seq.m_now
+        s_pos, s_ts, s_time = seq.s_pos, got.s_ts[seq.s_idx], got.s_time[seq.s_idx]
+        n_strobes = int(seq.s_idx.size)
+    else:
+        n_by_strobe = int(np.count_nonzero(undated[j0:]))  # run_clock dates them (never epoch_future)
+        mrows, m_time, kind, t_s, vals = (
+            a[j0:] for a in (got.m_row, got.m_time, got.kind, got.t_s, got.vals)
+        )
+        m_pos, m_now = mrows, m_time
+        s_pos, s_ts, s_time = got.s_row[s0:], got.s_ts[s0:], got.s_time[s0:]
+        n_strobes = int(s_pos.size)
     lap("checks")
 
     # 3. the STROBE clock: the sensor-set "now" at every measurement's arrival (epoch_future rejection,
     # the stale-output bound)
     cfg = options.config
     stale_before = cfg.link.max_output_age_s + cfg.merge.hold_s
+    clock0 = copy.deepcopy(pipe.clock)  # the clock at the hand-over (for _end_gap)
     fresh_min, future, n_future = replay_clock(
         pipe.clock,
-        (got.s_row[s0:], got.s_ts[s0:], got.s_time[s0:]),
-        (mrows, m_time, t_s),
+        (s_pos, s_ts, s_time),
+        (m_pos, m_time, t_s),
         cfg.clock.max_future_s,
         stale_before,
+        m_now,
     )
+    if seq is not None:
+        why = seq.merge_reason(t_s, n_future)
+        if why:
+            return None, _info(False, why, h)
+        order = seq.merge_order(t_s)
+        if np.any(order != np.arange(order.size)):
+            seq = dataclasses.replace(seq, m_idx=seq.m_idx[order])
+            mrows, m_time, kind, t_s, vals, fresh_min, m_now, future = (
+                a[order] for a in (mrows, m_time, kind, t_s, vals, fresh_min, m_now, future)
+            )
     lap("clock")
 
     # GNSS fixes to the track's local frame (fix quality 0 stays (0, 0): the filter counts it as no fix)
@@ -544,10 +696,12 @@ def _replay_ingested(got, track, options, ingest_s: float = 0.0):
         gm = got.g_meas[gq]
         got.vals[gm, 0] = np.asarray(e, dtype=np.float64)
         got.vals[gm, 1] = np.asarray(nn, dtype=np.float64)
+        if seq is not None:  # (vals was taken in release order before the projection)
+            vals = got.vals[seq.m_idx]
     if n_future:  # Pipeline._date: epoch_future rejection
         keep = ~future
-        mrows, m_time, kind, t_s, vals, fresh_min = (
-            a[keep] for a in (mrows, m_time, kind, t_s, vals, fresh_min)
+        mrows, m_time, kind, t_s, vals, fresh_min, m_now = (
+            a[keep] for a in (mrows, m_time, kind, t_s, vals, fresh_min, m_now)
         )
     nm = mrows.size
     lap("pack")
@@ -566,7 +720,7 @@ def _replay_ingested(got, track, options, ingest_s: float = 0.0):
         -math.inf if last is None else float(last.epoch_s),
         math.nan if last is None else float(last.arc_length_m),
         cols,
-        m_time,
+        m_now,  # an estimate is sent when its measurement is released (its arrival, or a hold's end)
         options.config.link.start_seq + pipe.link.outputs,
     )
     i = 0
@@ -576,7 +730,7 @@ def _replay_ingested(got, track, options, ingest_s: float = 0.0):
             break
         i = j
         msg = decode_input(got.datagram(int(mrows[i]))[2])
-        upd = filt.process(to_measurement(msg, msg.epoch))
+        upd = filt.process(to_measurement(msg, float(t_s[i])))  # its epoch, or as the clock dated it
         state.python_row(i, upd, fresh_min[i])
         i += 1
     lap("filter")
@@ -590,7 +744,7 @@ def _replay_ingested(got, track, options, ingest_s: float = 0.0):
         "epoch": e_f[0, :rows],
         "arc_length": e_f[1, :rows],
         "seq": e_i[0, :rows],
-        "retransmit": np.zeros(rows, dtype=np.int64),  # no retransmission after the prefix
+        "retransmit": np.zeros(rows, dtype=np.int64),  # the retransmissions are inserted below
         "arrival": e_f[2, :rows],
         "speed": e_f[3, :rows],
         "sigma": e_f[4, :rows],
@@ -647,6 +801,22 @@ def _replay_ingested(got, track, options, ingest_s: float = 0.0):
             ]
         ),
     }
+    reasons = e_i[3, :rows].copy()
+    reasons[:he] = prefix.reason_rows
+    retx = _retransmissions(prefix.est_rows, est["arrival"][he:], float(got.row_t[n - 1]), cfg.link)
+    retx, why = _end_gap(retx, k_out, got, pipe, clock0, (s_ts, s_time), cfg)
+    if why:
+        return None, _info(False, why, h)
+    if retx.size:  # after row he + after[k]: a resend of that row's estimate at times[k]
+        after, times = retx[:, 0].astype(np.int64) + he, retx[:, 1]
+        at = after + 1
+        est = {k: np.insert(v, at, v[after]) for k, v in est.items()}
+        est["retransmit"][at + np.arange(at.size)] = 1
+        est["arrival"][at + np.arange(at.size)] = times
+        reasons = np.insert(reasons, at, reasons[after])
+        bits = np.insert(e_i[3, :rows], at, e_i[3, after])
+    else:
+        bits = e_i[3, :rows]
     lap("result columns")
 
     # 6. counters: the pipeline's own objects advanced as the exact replay would have advanced them
@@ -668,8 +838,11 @@ def _replay_ingested(got, track, options, ingest_s: float = 0.0):
     types = res[R_TYPES : R_TYPES + 16] - np.bincount(head[head >= 0], minlength=16)
     for t in np.flatnonzero(types).tolist():
         pipe.by_type[_TYPE_NAME.get(t, str(t))] += int(types[t])
-    c["strobes"] += int(types[9])
-    c["dated_by_epoch"] += nm
+    c["strobes"] += n_strobes
+    if nm - n_by_strobe:
+        c["dated_by_epoch"] += nm - n_by_strobe
+    if n_by_strobe:
+        c["dated_by_strobe"] += n_by_strobe
     c["processed"] += nm
     if ost[O_STALE]:
         c["stale_not_sent"] += int(ost[O_STALE])
@@ -683,10 +856,14 @@ def _replay_ingested(got, track, options, ingest_s: float = 0.0):
         pipe.last_estimate = state.last_estimate(float(est["lat"][-1]), float(est["lon"][-1]))
     metrics = pipe.metrics()
     seqm = metrics["sequencing"]
-    n_valid = int(types.sum())
-    for k in ("received", "released", "in_order"):
-        seqm[k] += n_valid
+    if seq is None:  # (else the listener's own sequence buffers took every datagram)
+        n_valid = int(types.sum())
+        for k in ("received", "released", "in_order"):
+            seqm[k] += n_valid
     metrics["link"]["outputs"] += k_out
+    metrics["link"]["retransmits"] += int(retx.shape[0])
+    for k in ("state", "state_since", "transitions", "withheld"):  # the prefix's: not simulated after it
+        metrics["link"].pop(k, None)
     compiled = (n - h) - state.python_steps
     metrics["fast_replay"] = {
         "exact_prefix_datagrams": h,
@@ -695,8 +872,10 @@ def _replay_ingested(got, track, options, ingest_s: float = 0.0):
         "handed_back_at_junctions": state.branched,
         "undone_for_scores": state.undone,
         "compiled_fraction": compiled / n,
-        "retransmissions_simulated": "exact prefix only",
-        "reason_bits": e_i[3, :rows],  # taken out again by try_fast_replay (vital_reason)
+        "retransmissions_added": int(retx.shape[0]),
+        # (the pipeline sections the compiled path does not advance: left out, not stale)
+        "not_simulated": ["vital", "link.state", "link.state_since", "link.transitions", "link.withheld"],
+        "reason_bits": bits,  # taken out again by try_fast_replay (vital_reason; the prefix's rows -1)
     }
     last_frame = int(res[R_STOP_FRAME]) if stopped else int(res[R_FRAMES])
     skipped = Counter()
@@ -711,6 +890,7 @@ def _replay_ingested(got, track, options, ingest_s: float = 0.0):
         metrics=metrics,
         datagrams=n,
         skipped_sensor=0,
+        reasons=reasons,
     )
     result.capture = {  # the fast scan refuses a truncated file (the exact reader counts and warns)
         "frames": last_frame, "datagrams": n, "skipped": dict(skipped),
@@ -718,6 +898,127 @@ def _replay_ingested(got, track, options, ingest_s: float = 0.0):
     }  # fmt: skip
     lap("counters")
     return result, _info(True, "", h, compiled, state.python_steps, timing)
+
+
+def _end_gap(retx: np.ndarray, k_out: int, got, pipe, clock0, strobes, cfg):
+    """The resends of the last estimate sent, after the last measurement (the end of the capture), with
+    the vital supervision on: (the resend rows kept, "") or (, why the exact replay is needed).
+    ``strobes``: (timestamp, arrival) of the STROBEs after the hand-over, in the order the clock took
+    them; ``clock0``: the clock at the hand-over.
+
+    After the last measurement the listener's timer runs at each module's time-out
+    (``Pipeline._supervision_deadline``: its last datagram + its time-out / clock.rate + the margin),
+    and again every ``_RECHECK_STEP_S`` for up to ``_RECHECK_FOR_S`` while the filter does not show that
+    time-out yet; it evaluates the filter's estimate propagated to the sensor time of ``now`` and
+    withholds the standard output, the newest estimate's resends included, once that is LOST
+    (``Pipeline._supervise``). Here the filter (its final state: no measurement comes later) is asked
+    the same question at each time-out, on the STROBE clock as it stood then, and at the end of its
+    re-check window where re-checks run (a status that only worsens as the propagation goes on, as the
+    time-outs and the growing sigma make it): a resend before the first LOST is sent, one after the
+    time-out that saw it is not (the same float expressions as the pipeline's timers: a resend due at
+    that time-out comes after it); a resend after a re-check window that ends LOST (the re-checks may
+    have stopped before) or the strict output modes are left to the exact replay."""
+    from listener.pipeline import _RECHECK_FOR_S, _RECHECK_STEP_S, _TIMEOUT_REASON
+    from tools.fast_clock import replay_strobes
+
+    if not cfg.vital.enabled or retx.shape[0] == 0:
+        return retx, ""
+    end = retx[:, 0] == k_out - 1
+    if not end.any():
+        return retx, ""
+    times = retx[end, 1]
+    why = "vital supervision: the link's resends of the last estimate after a module's time-out"
+    if cfg.vital.standard_output == "nominal" or cfg.link.extended:
+        return retx, why
+    fc = pipe.filter.config
+    timeout = {1: fc.imu_timeout_s, 2: fc.odo_timeout_s, 3: fc.gps_timeout_s}
+    reason = {1: _TIMEOUT_REASON["imu"], 2: _TIMEOUT_REASON["odometer"], 3: _TIMEOUT_REASON["gnss"]}
+    last_meas = float(got.m_time.max())
+    due = sorted(
+        (float(got.m_time[got.kind == k].max()) + timeout[k] / cfg.clock.rate + cfg.vital.timeout_margin_s, k)
+        for k in (1, 2, 3) if np.any(got.kind == k)
+    )  # fmt: skip
+    due = [(d, k) for d, k in due if d > last_meas]  # (earlier ones ran during the capture)
+
+    def status_at(now: float):
+        clock = copy.deepcopy(clock0)
+        before = strobes[1] < now  # the STROBEs taken before now (in the order the clock took them)
+        replay_strobes(clock, strobes[0][before], strobes[1][before])
+        t = clock.to_sensor_time(now)
+        return None if t is None else pipe.filter.estimate(at_s=t, propagate=True)
+
+    sent_before = math.inf  # resends before this time are sent (no LOST seen by then)
+    withheld_after = math.inf  # and from this time on withheld
+    for d, k in due:
+        if d > times[-1]:
+            break
+        est = status_at(d)
+        if est is None:
+            return retx, why
+        if est.status == FilterStatus.LOST:
+            withheld_after = d
+            sent_before = min(sent_before, d)
+            break
+        if reason[k] not in est.reasons:  # re-checks follow: LOST may come at any of them
+            window_end = d + _RECHECK_FOR_S + _RECHECK_STEP_S
+            late = status_at(window_end)
+            if late is None or late.status == FilterStatus.LOST:  # (re-checks may stop before it)
+                sent_before = min(sent_before, d)
+                break
+    # (the times are the pipeline's own float expressions: a time-out due with a resend runs first)
+    kept = times < sent_before
+    if not np.all(kept | (times >= withheld_after)):
+        return retx, why
+    return retx[~end | (retx[:, 1] < sent_before)], ""
+
+
+def _retransmissions(prefix_rows, created: np.ndarray, t_end: float, link) -> np.ndarray:
+    """The OBCU link's retransmissions after the exact prefix, as listener.obcu_link sends them in the
+    exact replay: (k, time) rows, a resend of the k-th new estimate after the prefix (-1: the prefix's
+    newest) at that time.
+
+    In a replay nothing is ever acked and (``link.max_rate_hz = 0``) every new estimate is sent when it
+    is made (``created``: its arrival column). The newest sent estimate is resent by the link's timer at
+    ``last_sent + retransmit_interval_s``, at most ``max_retransmits`` times and not once it is older than
+    ``max_output_age_s``; the replay fires that timer when it is due at or before the next datagram, so
+    before the next new estimate (made at its datagram's arrival), and the final flush at the last
+    datagram (the STOP, or the end of the capture) runs the same check once more at that time."""
+    interval = float(link.retransmit_interval_s)
+    most = int(link.max_retransmits)
+    age = float(link.max_output_age_s)
+    out: list[tuple[float, float]] = []
+    if most <= 0:
+        return np.zeros((0, 2))
+    if prefix_rows:  # the prefix's newest: its first send, its resends so far, the last send
+        seq = prefix_rows[-1][2]
+        k0 = len(prefix_rows) - 1
+        while k0 > 0 and prefix_rows[k0][3] == 1 and prefix_rows[k0 - 1][2] == seq:
+            k0 -= 1
+        first = (-1, float(prefix_rows[k0][4]), len(prefix_rows) - 1 - k0, float(prefix_rows[-1][4]))
+    else:
+        first = None
+    count = created.shape[0]
+    # the gaps in which a resend can fall: the next estimate (or the end) at least an interval after
+    gaps = np.flatnonzero(np.diff(np.append(created, t_end)) >= interval - 1e-9).tolist()
+    starts = [first] if first is not None else []
+    starts += [(k, float(created[k]), 0, float(created[k])) for k in gaps]
+    for k, made, resends, last_sent in starts:
+        until = float(created[k + 1]) if k + 1 < count else t_end
+        while resends < most:
+            due = last_sent + interval  # ObcuLink.next_timer; handle_timer(due) finds it due
+            final = due > until  # not before the next datagram: only the final flush may still resend
+            if final:
+                if k + 1 < count or not t_end - last_sent >= interval - 1e-12:
+                    break
+                due = t_end
+            if due - made > age:
+                break
+            out.append((k, due))
+            resends += 1
+            last_sent = due
+            if final:
+                break
+    return np.array(out, dtype=np.float64).reshape(-1, 2)
 
 
 def _info(used: bool, reason: str, prefix: int, compiled: int = 0, python: int = 0, timing=None):

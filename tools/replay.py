@@ -79,7 +79,7 @@ class ReplayResult:
         return {k: v[keep] for k, v in self.estimates.items()}
 
     def new_reasons(self) -> np.ndarray | None:
-        """Reason bits of the new estimates (None where the replay did not record them: --fast)."""
+        """Reason bits of the new estimates (None where the replay did not record them)."""
         if self.reasons is None:
             return None
         return self.reasons[self.estimates["retransmit"] == 0]

@@ -42,11 +42,18 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument("--no-baselines", action="store_true", help="skip the baseline estimators")
     parser.add_argument("--no-report", action="store_true", help="skip figures and report.html")
-    parser.add_argument(
+    path = parser.add_mutually_exclusive_group()
+    path.add_argument(
+        "--exact",
+        action="store_true",
+        help="the exact replay: the listener's pipeline datagram by datagram, even where the compiled "
+        "path could run (the default is the compiled path, with the same outputs, where the capture allows)",
+    )
+    path.add_argument(
         "--fast",
         action="store_true",
-        help="compiled replay when the capture allows it (same estimates; otherwise the exact replay "
-        "runs and the reason is printed)",
+        help="the compiled path where the capture allows it (the default now; the flag is kept for "
+        "compatibility)",
     )
     parser.add_argument("--quiet", action="store_true", help="no progress bar")
 
@@ -87,18 +94,21 @@ def run(args: argparse.Namespace) -> int:
     t0 = time.perf_counter()
     result = None
     path_used = "exact"
-    if args.fast:
+    declined = None
+    if not args.exact:  # the compiled path (tools.fast_replay): the same outputs where it runs
         from tools.fast_replay import try_fast_replay
 
         result, info = try_fast_replay(args.capture, track, options)
         if result is None:
-            print(f"replay: fast path not used ({info.reason}); running the exact replay", file=sys.stderr)
+            declined = info.reason
         else:
             path_used = "fast"
     if result is None:
         result = replay_capture(
             args.capture, track, options, show_progress=not args.quiet and sys.stderr.isatty()
         )
+    if declined is not None:  # (said once the exact replay ran: a capture it cannot read fails alone)
+        print(f"sfa replay: compiled path not used ({declined}); ran the exact replay", file=sys.stderr)
     wall = time.perf_counter() - t0
     for warning in result.capture.get("warnings", ()):
         print(f"sfa replay: warning: {warning}", file=sys.stderr)

@@ -288,7 +288,7 @@ def _status_figure(plt, data: ReportData):
     ax.set_xlabel("time since the first estimate [s]")
     note = ""
     if reasons is None:
-        note = " (reasons not recorded for this run: the --fast replay does not keep them)"
+        note = " (reasons not recorded for this run)"
     elif data.reasons_note:
         note = f" (reasons: {data.reasons_note})"
     ax.set_title("filter status and the reasons for it" + note, fontsize=9)
