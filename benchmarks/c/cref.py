@@ -53,8 +53,8 @@ class CReferenceUnavailable(RuntimeError):
 
 def layout_header() -> str:
     """``#define`` lines for every integer slot of sfa.layout the C code uses, the adaptive GNSS model's
-    layout constants and sfa.gnss_noise's constants (GN_*), NVALS, COS_MAX_ROLL and the GNSS update's GPS_IEKF_* (sfa.kernels); floats
-    written with repr: the same doubles."""
+    layout constants and sfa.gnss_noise's constants (GN_*), NVALS, COS_MAX_ROLL and the GNSS update's
+    GPS_IEKF_* (sfa.kernels); floats written with repr: the same doubles."""
     from sfa import layout
     from sfa.batch import NV
 
@@ -80,7 +80,8 @@ def layout_header() -> str:
     from sfa.kernels import COS_MAX_ROLL, GPS_IEKF_ITERATIONS, GPS_IEKF_TOL_M
 
     lines += [f"#define NVALS {NV}", f"#define COS_MAX_ROLL {COS_MAX_ROLL!r}",
-              f"#define GPS_IEKF_ITERATIONS {GPS_IEKF_ITERATIONS}", f"#define GPS_IEKF_TOL_M {GPS_IEKF_TOL_M!r}",
+              f"#define GPS_IEKF_ITERATIONS {GPS_IEKF_ITERATIONS}",
+              f"#define GPS_IEKF_TOL_M {GPS_IEKF_TOL_M!r}",
               "#endif", ""]
     return "\n".join(lines)
 
