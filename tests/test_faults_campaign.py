@@ -370,3 +370,33 @@ def test_masquerades_and_a_stop_after_a_gap_on_the_replay_path(tmp_path):
     assert rows["gt-control"]["gt_held"] == rows["gt-control"]["masquerade_inj"] == 2
     assert rows["cross-key"]["foreign_det"] >= rows["cross-key"]["foreign_inj"] == 2
     assert 0.0 < float(rows["stop-gap"]["stop_exit_s"]) <= 1.0  # released by the hold timer, not at once
+
+
+def _observation(arrival, sim_s: float):
+    import numpy as np
+
+    from tools.faults.evaluate import Observation
+
+    t = np.asarray(arrival, dtype=float)
+    return Observation(
+        name="x", mode="replay", simulated_s=sim_s, truth_epoch=np.array([0.0, sim_s]),
+        truth_arc=np.array([0.0, sim_s]), start_epoch_s=0.0, fresh_arrival=t, fresh_epoch=t, fresh_arc=t,
+        fresh_lo=t - 1.0, fresh_hi=t + 1.0, fresh_age=np.zeros(t.size), fresh_reasons=None, metrics={},
+        link_transitions=[], input_proxy={}, output_proxy={}, input_blackouts=(), output_blackouts=(),
+        sensor_fault_windows=[], crashes=0,
+    )
+
+
+def test_outputs_lost_counts_long_gaps_per_run_not_the_seams_of_pooled_runs():
+    import numpy as np
+
+    from tools.faults.evaluate import evaluate, evaluate_pooled
+
+    steady = np.arange(0.0, 20.0, 0.01)
+    gap = steady[(steady < 5.0) | (steady >= 7.0)]  # 2 s without an output: about 200 missing
+    one = evaluate(_observation(gap, 20.0), {})
+    assert 195 <= one["outputs_lost"] <= 205 and float(one["longest_gap_s"]) == pytest.approx(2.0, abs=0.02)
+    assert evaluate(_observation(steady, 20.0), {})["outputs_lost"] == 0
+    pooled = evaluate_pooled([_observation(gap, 20.0), _observation(steady, 20.0)], {"max_gap_s": 1.0})
+    assert pooled["outputs_lost"] == one["outputs_lost"] and pooled["longest_gap_s"] == one["longest_gap_s"]
+    assert "max_gap_s:FAIL" in pooled["checks"]

@@ -482,6 +482,7 @@ def evaluate_pooled(runs: list[Observation], expect: dict[str, Any]) -> dict[str
         vals = [r.get(key) for r, _ in singles if r.get(key) not in (None, "n/a", "-")]
         if vals:
             row[key] = max(vals, key=float)
+    row["outputs_lost"] = sum(int(r["outputs_lost"]) for r, _ in singles)  # not the seams between runs
     if any("kill_s" in r for r, _ in singles):
         row["kill_s"] = " ".join(str(r.get("kill_s")) for r, _ in singles)
         row["seq_before"] = row["seq_after"] = row["restart_s"] = "per seed"

@@ -21,6 +21,7 @@ sensor_faults = [{ kind = "gnss_outage", start_s = 40.0, end_s = 80.0 }]   # int
 listener = ["link.degraded_after_s=2.0"]
 expect = { crashes = 0, p95_m = 5.0, coverage = 0.99, losses_match = true }
 seeds = 10      # independent repetitions (simulator and link seeds + 0..9), figures pooled
+restart = { kill_window_s = [30.0, 60.0], down_s = 1.0 }   # kill -9 at a seeded time, restart 1 s later
 ```
 Every key is checked; an unknown one is an error naming it. ``expect`` keys are in :data:`EXPECT_KEYS`.
 """
