@@ -400,3 +400,16 @@ def test_outputs_lost_counts_long_gaps_per_run_not_the_seams_of_pooled_runs():
     pooled = evaluate_pooled([_observation(gap, 20.0), _observation(steady, 20.0)], {"max_gap_s": 1.0})
     assert pooled["outputs_lost"] == one["outputs_lost"] and pooled["longest_gap_s"] == one["longest_gap_s"]
     assert "max_gap_s:FAIL" in pooled["checks"]
+
+
+def test_outputs_to_end_is_judged_on_the_arrival_axis():
+    """Live arrivals are wall seconds: a row at speed 10 ends at duration / 10 on that axis."""
+    import numpy as np
+
+    from tools.faults.evaluate import evaluate
+
+    obs = _observation(np.arange(0.0, 9.0, 0.01), 90.0)
+    assert "outputs_to_end_s:FAIL" in evaluate(obs, {"outputs_to_end_s": 2.0})["checks"]
+    obs.run_s = 9.0
+    assert "outputs_to_end_s:PASS" in evaluate(obs, {"outputs_to_end_s": 2.0})["checks"]
+    assert evaluate(obs, {})["outputs_lost"] == 0

@@ -556,6 +556,7 @@ def run_live(spec: ScenarioSpec, out: Path) -> Observation:
         reasons_seen=reasons, notes=notes,
         corruption=bool(spec.input_link and (spec.input_link.bitflip > 0 or spec.input_link.forge_on_stream)),
         restart=restart, stop_exit_s=stop_exit_s, status_reasons=status_reasons,
+        run_s=float(sim.duration_s) / spec.speed,  # arrivals are wall seconds
     )
     if spec.auth:
         # live, the accepted datagrams cannot be matched one by one against the originals (the replay
