@@ -73,7 +73,8 @@ EXPECT_KEYS = {
     "ground_truth_held_match": "every GROUND TRUTH forged as the control module held by plausibility, none "
                                "confirmed (true)",
     "burst_rejected_match": "authenticated link: every datagram of the replay burst rejected as a replay "
-                            "(true)",
+                            "(true; record only datagrams the listener accepted before: a restart row's "
+                            "burst must come from before the earliest kill)",
 }
 
 
