@@ -179,6 +179,13 @@ class ReplayWindow:
         """(newest, accepted bits as hex) for a checkpoint (:meth:`restore` reads it back)."""
         return self.newest, format(self._bits, "x")
 
+    def skip(self, n: int) -> None:
+        """Treat the next ``n`` extended sequence numbers as accepted (and every one in the window before
+        them): after a restart from a checkpoint, the ones the lost process may have accepted since."""
+        if self.newest is not None and n > 0:
+            self.newest += n
+            self._bits = (1 << self.size) - 1
+
     @classmethod
     def restore(cls, size: int, newest: int | None, bits_hex: str) -> ReplayWindow:
         """A window as :meth:`export` saved it (bits beyond ``size`` dropped); ValueError on bad values."""

@@ -30,6 +30,8 @@ from listener.checkpoint import (
     CheckpointError,
     ResumeGuard,
     ResumePlan,
+    assess,
+    decode,
     filter_state,
     seed_values,
     track_fingerprint,
@@ -230,6 +232,24 @@ class Resilience:
             "auth": None if p.auth is None else p.auth.export_state(),
             "extra": {name: save() for name, (save, _) in sorted(p.checkpoint_extra.items())},
         }
+
+    def load(self, data: bytes | None, now: float, *, wall_now: float, mono_now: float,
+             boot_id: str | None) -> bool:
+        """Resume from the checkpoint document ``data`` (None: there is none) if it is acceptable, else
+        refuse it with a reason (warned, counted: the filter then waits for GROUND TRUTH); then start
+        checkpoints. True when resumed. The service calls it with the file's bytes; the campaign's
+        replay path with the file its earlier pipeline wrote."""
+        resumed = False
+        if data is not None:
+            try:
+                plan = assess(decode(data), track_fp=self.fingerprint(), wall_now=wall_now, mono_now=mono_now,
+                              boot_id=boot_id, config=self.cfg.checkpoint)
+                self.resume(plan, now)
+                resumed = True
+            except CheckpointError as exc:
+                self.refused(exc, now)
+        self.enable_checkpoints(now)
+        return resumed
 
     def resume(self, plan: ResumePlan, now: float) -> None:
         """Restore an accepted checkpoint: the output SEQ, the anti-replay state and the extras now; the

@@ -248,15 +248,7 @@ class ListenerService:
         except OSError as exc:
             res.refused(ckpt.CheckpointError("unreadable", str(exc)), now)
             data = None
-        if data is not None:
-            try:
-                body = ckpt.decode(data)
-                plan = ckpt.assess(body, track_fp=res.fingerprint(), wall_now=time.time(),
-                                   mono_now=time.monotonic(), boot_id=boot_id(), config=self.cfg.checkpoint)
-                res.resume(plan, now)
-            except ckpt.CheckpointError as exc:
-                res.refused(exc, now)
-        res.enable_checkpoints(now)
+        res.load(data, now, wall_now=time.time(), mono_now=time.monotonic(), boot_id=boot_id())
         self._log_events()
 
     def _send(self, datagrams: list[bytes]) -> None:

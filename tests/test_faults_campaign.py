@@ -299,3 +299,117 @@ def test_seeded_repetitions_pool_their_figures_and_counters(tmp_path):
     assert pooled["notes"].startswith("3 seeds pooled")
     with pytest.raises(FaultConfigError, match="seeds"):
         campaign({**row, "seeds": 0})
+
+
+# ---------------------------------------------------------------- issue 20: kill -9 and restart, STOP gap
+RESTART = {"kill_window_s": [6.0, 8.0], "down_s": 1.0}
+
+
+def test_restart_table_is_validated_and_the_kill_time_is_seeded():
+    with pytest.raises(FaultConfigError, match="kill_window_s"):
+        campaign({"name": "a", "restart": {"kill_window_s": [3.0]}})
+    with pytest.raises(FaultConfigError, match="before duration_s"):
+        campaign({"name": "a", "restart": {"kill_window_s": [3.0, 30.0]}})
+    with pytest.raises(FaultConfigError, match="unknown key"):
+        campaign({"name": "a", "restart": {"kill_window_s": [3.0, 4.0], "when": 1}})
+    spec = campaign({"name": "a", "restart": RESTART, "seeds": 3}).scenarios[0]
+    times = [spec.repetition(k).restart.kill_at_s(spec.repetition(k).seed) for k in range(3)]
+    assert all(6.0 <= t <= 8.0 for t in times) and len(set(times)) == 3
+    assert times == [spec.repetition(k).restart.kill_at_s(spec.repetition(k).seed) for k in range(3)]
+
+
+def test_kill_and_restart_on_the_replay_path_resumes_and_seq_continues(tmp_path):
+    expect = {"crashes": 0, "resume_within_s": 3.0, "seq_continues": True, "warnings": ["resumed"]}
+    c = campaign({"name": "kill", "restart": RESTART, "expect": expect},
+                 {"name": "kill-no-checkpoint", "restart": RESTART, "expect": expect,
+                  "listener": ["checkpoint.enabled=false"]})
+    row = run_scenario(c.scenarios[0], "replay", str(tmp_path))
+    assert row["verdict"] == "PASS", row
+    trace = json.loads((tmp_path / "kill" / "trace.json").read_text())
+    rs = trace["restart"]
+    assert rs["resumed"] and rs["checkpoint_found"] and rs["lost_while_down"] > 50  # 1 s of IMU at 100 Hz
+    assert 6.0 <= rs["kill_s"] <= 8.0 and rs["restart_s"] == pytest.approx(rs["kill_s"] + 1.0)
+    assert float(row["resume_s"]) < 0.1
+    # the same kill without a checkpoint: the restarted listener waits for GROUND TRUTH (never sent again)
+    bad = run_scenario(c.scenarios[1], "replay", str(tmp_path))
+    assert bad["verdict"] == "FAIL"
+    assert "resume_within_s:FAIL" in bad["checks"] and "seq_continues:FAIL" in bad["checks"]
+    assert "warnings:FAIL" in bad["checks"]
+
+
+def test_authenticated_replays_after_a_restart_are_rejected_only_with_the_checkpoint(tmp_path):
+    """The recorded first datagrams of every module (the GROUND TRUTH among them) re-sent after the
+    restart: the anti-replay windows come back with the checkpoint; without it the GROUND TRUTH passes."""
+    expect = {"crashes": 0, "burst_rejected_match": True, "auth_bad": 0}
+    link = {"replay_burst": 5, "replay_burst_at_s": 10.0}  # the first 5 s: before the earliest kill
+    c = campaign({"name": "burst", "auth": True, "restart": RESTART, "input_link": link, "expect": expect},
+                 {"name": "burst-no-checkpoint", "auth": True, "restart": RESTART, "input_link": link,
+                  "expect": expect, "listener": ["checkpoint.enabled=false"]})
+    row = run_scenario(c.scenarios[0], "replay", str(tmp_path))
+    assert row["verdict"] == "PASS", row
+    assert row["burst_inj"] == 4 * 5 and row["auth_replay_rej"] >= row["burst_inj"]
+    bad = run_scenario(c.scenarios[1], "replay", str(tmp_path))
+    assert bad["verdict"] == "FAIL" and bad["auth_bad"] > 0, bad
+
+
+def test_masquerades_and_a_stop_after_a_gap_on_the_replay_path(tmp_path):
+    gt = {"forge_on_stream": True, "forge_as": "ground_truth", "forge_kind": "ground_truth",
+          "forge_rate_hz": 0.5, "forge_valid_fraction": 1.0, "inject_start_s": 6.0, "inject_end_s": 10.0}
+    c = campaign(
+        {"name": "gt-control", "input_link": gt,
+         "expect": {"ground_truth_held_match": True, "max_m": 20.0,
+                    "warnings": ["ground_truth_unconfirmed"]}},
+        {"name": "cross-key", "auth": True,
+         "input_link": {**gt, "forge_as": "gps", "forge_kind": "stop"},
+         "expect": {"foreign_rejected_match": True, "auth_bad": 0, "outputs_to_end_s": 2.0,
+                    "warnings": ["sender_rejected"]}},
+        {"name": "stop-gap", "input_link": {"stop_seq_gap": 1}, "expect": {"stop_exit_within_s": 1.0}},
+    )
+    rows = {s.name: run_scenario(s, "replay", str(tmp_path)) for s in c.scenarios}
+    assert all(r["verdict"] == "PASS" for r in rows.values()), rows
+    assert rows["gt-control"]["gt_held"] == rows["gt-control"]["masquerade_inj"] == 2
+    assert rows["cross-key"]["foreign_det"] >= rows["cross-key"]["foreign_inj"] == 2
+    assert 0.0 < float(rows["stop-gap"]["stop_exit_s"]) <= 1.0  # released by the hold timer, not at once
+
+
+def _observation(arrival, sim_s: float):
+    import numpy as np
+
+    from tools.faults.evaluate import Observation
+
+    t = np.asarray(arrival, dtype=float)
+    return Observation(
+        name="x", mode="replay", simulated_s=sim_s, truth_epoch=np.array([0.0, sim_s]),
+        truth_arc=np.array([0.0, sim_s]), start_epoch_s=0.0, fresh_arrival=t, fresh_epoch=t, fresh_arc=t,
+        fresh_lo=t - 1.0, fresh_hi=t + 1.0, fresh_age=np.zeros(t.size), fresh_reasons=None, metrics={},
+        link_transitions=[], input_proxy={}, output_proxy={}, input_blackouts=(), output_blackouts=(),
+        sensor_fault_windows=[], crashes=0,
+    )
+
+
+def test_outputs_lost_counts_long_gaps_per_run_not_the_seams_of_pooled_runs():
+    import numpy as np
+
+    from tools.faults.evaluate import evaluate, evaluate_pooled
+
+    steady = np.arange(0.0, 20.0, 0.01)
+    gap = steady[(steady < 5.0) | (steady >= 7.0)]  # 2 s without an output: about 200 missing
+    one = evaluate(_observation(gap, 20.0), {})
+    assert 195 <= one["outputs_lost"] <= 205 and float(one["longest_gap_s"]) == pytest.approx(2.0, abs=0.02)
+    assert evaluate(_observation(steady, 20.0), {})["outputs_lost"] == 0
+    pooled = evaluate_pooled([_observation(gap, 20.0), _observation(steady, 20.0)], {"max_gap_s": 1.0})
+    assert pooled["outputs_lost"] == one["outputs_lost"] and pooled["longest_gap_s"] == one["longest_gap_s"]
+    assert "max_gap_s:FAIL" in pooled["checks"]
+
+
+def test_outputs_to_end_is_judged_on_the_arrival_axis():
+    """Live arrivals are wall seconds: a row at speed 10 ends at duration / 10 on that axis."""
+    import numpy as np
+
+    from tools.faults.evaluate import evaluate
+
+    obs = _observation(np.arange(0.0, 9.0, 0.01), 90.0)
+    assert "outputs_to_end_s:FAIL" in evaluate(obs, {"outputs_to_end_s": 2.0})["checks"]
+    obs.run_s = 9.0
+    assert "outputs_to_end_s:PASS" in evaluate(obs, {"outputs_to_end_s": 2.0})["checks"]
+    assert evaluate(obs, {})["outputs_lost"] == 0

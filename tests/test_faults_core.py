@@ -312,3 +312,93 @@ def test_seq_jump_forgeries_copy_the_senders_last_datagram_ahead():
         last = max(i for i in range(100) if i * 0.01 < t - 1e-9)  # (timers before a datagram at t)
         assert m.seq == last + 100 and m.epoch == pytest.approx(last * 0.01)
     assert forge_targeted(np.random.default_rng(1), "seq_jump", None) is None  # nothing to copy yet
+
+
+# ---------------------------------------------------------------- issue 20: masquerades, STOP gap, bursts
+C = ("127.0.0.1", 47000)  # the control module: GROUND TRUTH, STROBE, STOP from one socket
+
+
+def _control_and_imu(n: int = 300):
+    """A GROUND TRUTH (seq 0) from C, then IMU samples from A, and a STOP (seq 1) from C at the end."""
+    out = [(0.0, C, 0, encode_input(GroundTruth(0, 0.0, 0.0, 0.0, 100.0, None, None)))]
+    out += [(0.01 + t, s, q, d) for t, s, q, d in stream(n)]
+    out.append((0.02 + n * 0.01, C, 1, encode_input(Stop(1))))
+    return out
+
+
+def test_forge_as_poses_as_the_control_module_with_its_next_sequence_numbers():
+    imp = Impairments(forge_on_stream=True, forge_as="ground_truth", forge_kind="ground_truth",
+                      forge_rate_hz=10.0, forge_valid_fraction=1.0, inject_start_s=1.0, inject_end_s=1.5)
+    core = FaultCore(imp, seed=3, start=0.0)
+    out = drive(core, _control_and_imu())
+    forged = [(t, d) for t, d, s in out if s == C and d[0] == 8 and t >= 1.0]
+    assert len(forged) == core.stats()["forged_masquerade"] == 5
+    assert [int.from_bytes(d[1:3], "little") for _, d in forged] == [1, 2, 3, 4, 5]  # in sequence
+    assert all(isinstance(decode_input(d), GroundTruth) for _, d in forged)
+    assert core.stats()["forged_foreign"] == 0
+    # posing as the IMU's socket: a GROUND TRUTH from a source not bound to it (the sender table's case)
+    as_imu = Impairments(**{**imp.as_dict(), "forge_as": "imu", "blackouts": ()})
+    core = FaultCore(as_imu, seed=3, start=0.0)
+    out = drive(core, _control_and_imu())
+    assert core.stats()["forged_foreign"] == 5 and core.stats()["forged_masquerade"] == 0
+    assert sum(1 for _, d, s in out if s == A and d[0] == 8) == 5
+
+
+def test_forge_as_needs_forge_on_stream_and_a_known_type():
+    with pytest.raises(FaultConfigError, match="forge_as"):
+        Impairments(forge_as="ground_truth").validate()
+    with pytest.raises(FaultConfigError, match="forge_as"):
+        Impairments(forge_on_stream=True, forge_as="radar").validate()
+
+
+def test_stop_seq_gap_moves_only_the_stop():
+    core = FaultCore(Impairments(stop_seq_gap=1), seed=0, start=0.0)
+    out = drive(core, _control_and_imu(50))
+    control = [(d[0], int.from_bytes(d[1:3], "little")) for _, d, s in out if s == C]
+    assert control == [(8, 0), (10, 2)]  # GROUND TRUTH seq 0, then STOP seq 2: seq 1 never sent
+    assert core.stats()["stop_gapped"] == 1
+    assert seqs_of(out, A) == list(range(50))
+
+
+def test_replay_burst_resends_each_senders_first_datagrams_once_at_its_time():
+    items = _control_and_imu(200)
+    core = FaultCore(Impairments(replay_burst=5, replay_burst_at_s=1.005), seed=0, start=0.0)
+    out = drive(core, items)
+    late = [(d, s) for t, d, s in out if 1.005 <= t < 1.005 + 1e-3]  # between two real datagrams
+    firsts = [d for _, s, _, d in items if s == A][:5]
+    assert [d for d, s in late if s == A] == firsts
+    assert [d for d, s in late if s == C] == [items[0][3]]  # the control module's GROUND TRUTH
+    assert core.stats()["burst_replayed"] == 6
+    assert sum(1 for e in out if e[1] == items[0][3]) == 2  # the original and one replay, no more
+
+
+def test_cross_key_forgeries_are_signed_as_the_posed_as_module():
+    """On an authenticated stream a masquerade is signed with that module's key and epoch: the MAC
+    accepts it (a compromised key), so only the sender table can refuse it."""
+    from listener.auth import wrap
+    from listener.auth_link import LinkAuth, input_key
+    from tools.faults.forge import module_signer
+
+    master = bytes(range(32))
+    kid = 3
+    items = [(t, s, q, wrap(d, input_key(master, kid), 7, key_id=kid)) for t, s, q, d in stream(100)]
+    imp = Impairments(forge_on_stream=True, forge_as="imu", forge_kind="stop", forge_rate_hz=4.0,
+                      forge_valid_fraction=1.0, inject_start_s=0.2, inject_end_s=0.8)
+    unsigned = FaultCore(imp, seed=1, start=0.0)
+    drive(unsigned, items)
+    assert unsigned.stats()["forge_unsigned"] > 0 and unsigned.stats()["forged_foreign"] == 0
+    core = FaultCore(imp, seed=1, start=0.0, sign=module_signer(master))
+    out = drive(core, items)
+    from listener.auth import AuthError, AuthReason
+
+    link = LinkAuth(master)
+    opened, refused = [], []
+    for _, d, s in out:
+        try:
+            opened.append(link.open_input(d, s))
+        except AuthError as exc:
+            refused.append(exc.reason)
+    stops = [p for p in opened if p[0] == 10]
+    assert len(stops) == core.stats()["forged_foreign"] == 3  # authentic under the IMU's key
+    # each took the IMU's next SEQ: that real sample is then a replay for the MAC layer
+    assert refused == [AuthReason.REPLAY] * 3

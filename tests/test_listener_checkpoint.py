@@ -305,6 +305,39 @@ def test_anti_replay_state_survives_a_restart(track):
         second.restore_state({"input": [["x", -1, "zz"]]})
 
 
+def test_datagrams_accepted_after_the_last_checkpoint_are_not_accepted_again(track):
+    """kill -9 between two checkpoints: what the process accepted after the last one is not in the saved
+    window. Each window is saved with its advance over the last interval and skips that (+1) on the
+    restore, so those datagrams stay replays; the sender's later datagrams pass."""
+    from listener.auth import AuthError, AuthReason, wrap
+    from listener.auth_link import RESUME_SKIP_FACTOR, LinkAuth, input_key
+    from listener.codec import Strobe, encode_input
+
+    master = bytes(range(32))
+    key = input_key(master, 3)
+    sent = [wrap(encode_input(Strobe(k, 1000.0 + k)), key, 7, key_id=3) for k in range(200)]
+    first = LinkAuth(master)
+    for d in sent[:40]:
+        first.open_input(d, ("127.0.0.1", 1))
+    first.export_state()  # checkpoint 1 (no advance known yet)
+    for d in sent[40:80]:
+        first.open_input(d, ("127.0.0.1", 1))
+    saved = json.loads(json.dumps(first.export_state()))  # checkpoint 2: advanced by 40
+    assert saved["input"][0][3] == 40
+    for d in sent[80:110]:  # accepted after the last checkpoint, then killed
+        first.open_input(d, ("127.0.0.1", 1))
+    second = LinkAuth(master)
+    second.restore_state(saved)
+    skip_to = 79 + math.ceil(40 * RESUME_SKIP_FACTOR) + 1
+    for d in (sent[80], sent[109], sent[skip_to]):
+        with pytest.raises(AuthError) as e:
+            second.open_input(d, ("127.0.0.1", 9))
+        assert e.value.reason == AuthReason.REPLAY
+    assert second.open_input(sent[skip_to + 1], ("127.0.0.1", 1))[0] == 9
+    with pytest.raises(ValueError, match="advance"):
+        LinkAuth(master).restore_state({"input": [[3, 5, "1", -2]]})
+
+
 def test_checkpoint_path_and_atomic_write(tmp_path):
     from listener.service import checkpoint_path, write_atomic
 

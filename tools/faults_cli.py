@@ -77,6 +77,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                    help="send forged datagrams from a real client's upstream socket")
     p.add_argument("--impair-replies", action="store_true", default=None,
                    help="apply loss, duplication and corruption to replies as well")
+    p.add_argument("--auth-key-file", help="master key file (hex): forgeries posing as a module on an "
+                   "authenticated stream are signed with that module's key (a compromised key)")
     p.add_argument("--duration", type=float, help="exit after this many seconds")
     p.add_argument("--idle-exit", type=float, help="exit after this many seconds without client datagrams")
     p.set_defaults(faults_run=_run_proxy)
@@ -124,7 +126,13 @@ def _run_proxy(args: argparse.Namespace) -> int:
         value = getattr(args, name)
         if value is not None and value <= 0:
             raise FaultConfigError(f"--{name.replace('_', '-')} must be > 0")
-    proxy = UdpFaultProxy(FaultCore(imp, args.seed), args.listen, args.forward)
+    sign = None
+    if args.auth_key_file:
+        from listener.config import read_master_key
+        from tools.faults.forge import module_signer
+
+        sign = module_signer(read_master_key(args.auth_key_file))
+    proxy = UdpFaultProxy(FaultCore(imp, args.seed, sign=sign), args.listen, args.forward)
     asyncio.run(proxy.run(duration_s=args.duration, idle_exit_s=args.idle_exit))
     return 0
 

@@ -17,7 +17,9 @@ from typing import Any
 
 from tools.faults.errors import FaultConfigError
 
-FORGE_KINDS = ("random", "ground_truth", "stop", "seq_jump")
+FORGE_KINDS = ("random", "ground_truth", "stop", "seq_jump", "strobe_shift")
+#: SENSOR_TYPE names a forgery may pose as (Impairments.forge_as), with their SENSOR_TYPE byte
+SENSOR_NAMES = {"imu": 1, "odometer": 2, "gps": 3, "ground_truth": 8, "strobe": 9}
 
 
 @dataclass(frozen=True)
@@ -51,9 +53,25 @@ class Impairments:
     forge_on_stream: bool = False  #: send forged datagrams as if from a real sender (else their own source)
     #: what a *valid* forgery is (issue 20's trust attacks): "random" (any sensor, random content),
     #: "ground_truth" (a GROUND TRUTH at a random arc length), "stop" (a STOP), "seq_jump" (a copy of the
-    #: real sender's last datagram with SEQ + forge_seq_offset; needs forge_on_stream)
+    #: real sender's last datagram with SEQ + forge_seq_offset; needs forge_on_stream), "strobe_shift"
+    #: (a STROBE forge_shift_s off the stream's clock; made by the proxy live, which sees the stream)
     forge_kind: str = "random"
     forge_seq_offset: int = 100  #: seq_jump: how far ahead of the sender's last SEQ [sequence numbers]
+    #: strobe_shift: a STROBE dated the stream's sensor time now (the newest real STROBE's timestamp plus
+    #: the time since it passed) shifted by +- this, the sign drawn per forgery [s]
+    forge_shift_s: float = 100.0
+    #: forge_on_stream: pose as the real sender of this SENSOR_TYPE ("ground_truth": the control module,
+    #: "gps", ...; "" any real sender). A GROUND TRUTH or STOP forged on a stream takes the next SEQ of
+    #: that stream (the in-sequence masquerade); on an authenticated stream it is signed with that
+    #: sender's key and epoch (a compromised module key: needs the core's ``sign``)
+    forge_as: str = ""
+    #: a STOP is forwarded with SEQ + this (the control stream's numbers in between never sent: a STOP
+    #: after a gap) [sequence numbers]
+    stop_seq_gap: int = 0
+    #: replay burst: at this time from the start (< 0: none) every sender's first ``replay_burst``
+    #: datagrams (recorded as they passed) are re-sent from that sender's socket [s]
+    replay_burst_at_s: float = -1.0
+    replay_burst: int = 0  #: datagrams recorded per sender for the replay burst [count]
     garbage_rate_hz: float = 0.0  #: random-byte datagrams injected per second (a flood) [1/s]
     garbage_max_bytes: int = 64  #: longest garbage datagram [bytes]
     inject_start_s: float = 0.0  #: injections start this long after the proxy start [s]
@@ -72,6 +90,7 @@ class Impairments:
             if not (isinstance(value, int | float) and 0.0 <= value <= 1.0):
                 raise FaultConfigError(f"{name}: a probability in 0..1, got {value!r}")
         for name in ("duplicate_gap_s", "reorder_max_s", "delay_s", "jitter_s", "forge_rate_hz",
+                     "forge_shift_s",
                      "garbage_rate_hz", "inject_start_s"):
             value = getattr(self, name)
             if not (isinstance(value, int | float) and math.isfinite(value) and value >= 0.0):
@@ -83,6 +102,17 @@ class Impairments:
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, int) or value < low:
                 raise FaultConfigError(f"{name}: an integer >= {low}, got {value!r}")
+        if self.forge_as and self.forge_as not in SENSOR_NAMES:
+            names = ", ".join(SENSOR_NAMES)
+            raise FaultConfigError(f"forge_as: one of {names} (or \"\"), got {self.forge_as!r}")
+        if self.forge_as and not self.forge_on_stream:
+            raise FaultConfigError("forge_as: poses as a real sender: set forge_on_stream")
+        for name in ("stop_seq_gap", "replay_burst"):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, int) or not 0 <= value <= 32767:
+                raise FaultConfigError(f"{name}: an integer in 0..32767, got {value!r}")
+        if not (isinstance(self.replay_burst_at_s, int | float) and math.isfinite(self.replay_burst_at_s)):
+            raise FaultConfigError(f"replay_burst_at_s: a finite number, got {self.replay_burst_at_s!r}")
         if self.forge_kind not in FORGE_KINDS:
             raise FaultConfigError(f"forge_kind: one of {', '.join(FORGE_KINDS)}, got {self.forge_kind!r}")
         if self.forge_kind == "seq_jump" and not self.forge_on_stream:
@@ -100,6 +130,11 @@ class Impairments:
     def injects(self) -> bool:
         """Whether the profile injects datagrams of its own (forged or garbage)."""
         return self.forge_rate_hz > 0.0 or self.garbage_rate_hz > 0.0
+
+    @property
+    def bursts(self) -> bool:
+        """Whether the profile re-sends recorded datagrams in a replay burst."""
+        return self.replay_burst > 0 and self.replay_burst_at_s >= 0.0
 
     def as_dict(self) -> dict[str, Any]:
         out = dataclasses.asdict(self)

@@ -18,14 +18,25 @@ a reorder or a replay was counted.
 from __future__ import annotations
 
 import math
+import struct
 from collections import Counter, OrderedDict, deque
-from collections.abc import Hashable
+from collections.abc import Callable, Hashable
 from dataclasses import dataclass, field
 
 import numpy as np
 
-from tools.faults.config import Impairments
-from tools.faults.forge import flip_bits, forge_invalid, forge_targeted, forge_valid, garbage_batch, truncate
+from listener.codec import Strobe, encode_input
+from tools.faults.config import SENSOR_NAMES, Impairments
+from tools.faults.forge import (
+    flip_bits,
+    forge_invalid,
+    forge_targeted,
+    forge_valid,
+    garbage_batch,
+    inner_payload,
+    truncate,
+    with_seq,
+)
 
 FORGE_SENDER = ("forge", 0)  #: sender key of injected datagrams that do not pose as a real sender
 FAULT_SENDER_ADDR = ("127.0.0.1", 40999)  #: where the replay path says such datagrams come from
@@ -37,7 +48,8 @@ Emit = tuple[float, bytes, Hashable]
 COUNTERS = (
     "received", "forwarded", "dropped_loss", "dropped_burst", "dropped_blackout", "bitflipped",
     "truncated", "duplicated", "reordered", "reorder_expired", "replayed", "forged_valid",
-    "forged_invalid", "forged_foreign", "forged_jump", "garbage", "replies_received", "replies_forwarded",
+    "forged_invalid", "forged_foreign", "forged_jump", "forged_masquerade", "forge_unsigned", "stop_gapped",
+    "burst_replayed", "garbage", "replies_received", "replies_forwarded",
     "replies_dropped_blackout",
     "replies_dropped_loss", "replies_duplicated", "replies_bitflipped", "replies_truncated",
     "senders_evicted", "emitted", "leading_drops",
@@ -52,13 +64,23 @@ class _Sender:
     forwarded: bool = False  #: whether any datagram of this sender went out yet
     drops_since_forward: int = 0  #: datagrams dropped since the last one that went out
     last: bytes | None = None  #: the newest valid datagram forwarded (seq_jump forgeries copy it)
+    types: set = field(default_factory=set)  #: SENSOR_TYPEs it has sent (forge_as picks the sender by them)
+    seq: int | None = None  #: newest INPUT SEQ seen or forged on this stream (masquerades take the next)
+    record: list = field(default_factory=list)  #: its first datagrams, for the replay burst
 
 
 class FaultCore:
     """One direction's impairments (plus blackouts on the replies), deterministic for a seed."""
 
-    def __init__(self, impairments: Impairments, seed: int, start: float | None = None) -> None:
+    def __init__(self, impairments: Impairments, seed: int, start: float | None = None,
+                 sign: Callable[[bytes, bytes], bytes] | None = None) -> None:
+        """``sign(payload, template)``: an authenticated stream's forgery signed as ``template`` (the
+        posed-as sender's newest datagram) is signed, with that sender's key (``forge.module_signer``);
+        None: such forgeries are skipped (counted ``forge_unsigned``)."""
         self.imp = impairments.validate()
+        self.sign = sign
+        self._burst_done = False
+        self._strobe: tuple[float, float] | None = None  #: the newest real STROBE (timestamp, arrival)
         self.seed = seed
         self._rng = np.random.default_rng(seed)
         self._inj_rng = np.random.default_rng([seed, 1])  # injections never shift the forwarding draws
@@ -145,6 +167,21 @@ class FaultCore:
         if imp.loss > 0.0 and rng.random() < imp.loss:
             return self._drop(st, "dropped_loss", out)
         original = bytes(data)
+        if imp.stop_seq_gap and original[:1] == b"\x0a" and len(original) >= 3:  # a STOP (unauthenticated)
+            original = with_seq(original, (original[1] | original[2] << 8) + imp.stop_seq_gap)
+            c["stop_gapped"] += 1
+        inner = inner_payload(original)
+        if inner is not None:
+            st.types.add(inner[0])
+            from listener.serial import serial_gt
+
+            s_in = inner[1] | inner[2] << 8
+            if st.seq is None or serial_gt(s_in, st.seq):
+                st.seq = s_in
+        if inner is not None and inner[0] == 9 and inner is original and len(original) >= 13:  # a STROBE
+            self._strobe = (struct.unpack_from("<d", original, 5)[0], now)  # its timestamp, when it passed
+        if imp.replay_burst and len(st.record) < imp.replay_burst:
+            st.record.append(original)
         payload = original
         if imp.bitflip > 0.0 and rng.random() < imp.bitflip:
             payload = flip_bits(rng, payload, imp.bitflip_bits)
@@ -178,7 +215,7 @@ class FaultCore:
             self._emit(out, t, old, sender, st, advance=False)
         if imp.replay > 0.0:
             st.history.append(original)
-        if imp.forge_kind == "seq_jump" and valid:
+        if (imp.forge_kind == "seq_jump" or imp.forge_on_stream) and valid:
             st.last = original
         return out
 
@@ -240,6 +277,8 @@ class FaultCore:
         """When :meth:`handle_timer` has something to do (None: nothing scheduled)."""
         times = [st.held[1] for st in self._senders.values() if st.held is not None]
         times += [t for t in (self._next_forge, self._next_garbage) if t is not None]
+        if self.imp.bursts and not self._burst_done and self.start is not None:
+            times.append(self.start + self.imp.replay_burst_at_s)
         return min(times) if times else None
 
     def handle_timer(self, now: float) -> list[Emit]:
@@ -251,6 +290,13 @@ class FaultCore:
                 out.extend(self._release_expired(key, st, st.held[1]))
         imp = self.imp
         assert self.start is not None
+        if imp.bursts and not self._burst_done and now >= self.start + imp.replay_burst_at_s:
+            self._burst_done = True  # every sender's recorded datagrams, from its own socket, in order
+            t_burst = self.start + imp.replay_burst_at_s
+            for key, st in list(self._senders.items()):
+                for data in st.record:
+                    self.counters["burst_replayed"] += 1
+                    self._emit(out, t_burst, data, key, st, advance=False)
         end = self.start + imp.inject_end_s
         budget = imp.max_batch
         while self._next_forge is not None and self._next_forge <= now and budget > 0:
@@ -269,12 +315,34 @@ class FaultCore:
             if valid and imp.forge_kind != "random":
                 # issue 20's trust attacks: valid datagrams the sender table (GROUND TRUTH, STOP from
                 # their own source) or the sequence buffer (a jump on a real sender's stream) must stop
-                st = self._senders.get(sender) if sender != FORGE_SENDER else None
-                data = forge_targeted(rng, imp.forge_kind, None if st is None else st.last,
-                                      imp.forge_seq_offset)  # fmt: skip
+                st = self._senders.get(sender) if sender is not None and sender != FORGE_SENDER else None
+                whole = ("ground_truth", "stop", "strobe_shift")  # new datagrams, not a copy
+                if sender is None or (st is not None and imp.forge_kind in whole and st.last is None):
+                    continue  # forge_as: no such sender (yet)
+                if imp.forge_kind == "strobe_shift":
+                    if self._strobe is None:
+                        continue  # no STROBE seen yet: the stream's clock is not known
+                    ts, seen = self._strobe
+                    shift = imp.forge_shift_s if rng.random() < 0.5 else -imp.forge_shift_s
+                    data = encode_input(Strobe(int(rng.integers(0, 65536)), ts + (t - seen) + shift))
+                else:
+                    data = forge_targeted(rng, imp.forge_kind, None if st is None else st.last,
+                                          imp.forge_seq_offset)  # fmt: skip
                 if data is None:
                     continue
                 kind = "forged_jump" if imp.forge_kind == "seq_jump" else "forged_foreign"
+                if st is not None and imp.forge_kind in whole:
+                    data = self._on_stream(st, data)
+                    if data is None:
+                        self.counters["forge_unsigned"] += 1
+                        continue
+                    # posing as the control module (the sender GROUND TRUTH and STOP are bound to): only
+                    # plausibility stands in the way; posing as another module: the sender table
+                    bound = SENSOR_NAMES["ground_truth"]  # the control module's socket: its own types
+                    kind = "forged_masquerade" if bound in st.types else "forged_foreign"
+                    self._emit(out, t, data, sender, st, advance=False)  # in order with the stream
+                    self.counters[kind] += 1
+                    continue
             elif valid:
                 data, kind = forge_valid(rng), "forged_valid"
             else:
@@ -302,11 +370,28 @@ class FaultCore:
                 out.append((t, data, FORGE_SENDER))
         return out
 
-    def _forge_sender(self) -> Hashable:
+    def _forge_sender(self) -> Hashable | None:
+        """Who a forgery leaves as: a real sender (forge_on_stream; the one of SENSOR_TYPE ``forge_as``
+        when given, None while there is none), else the forger's own socket."""
+        if self.imp.forge_as:
+            want = SENSOR_NAMES[self.imp.forge_as]
+            keys = [k for k, st in self._senders.items() if want in st.types]
+            return keys[0] if keys else None
         if self.imp.forge_on_stream and self._senders:
             keys = list(self._senders)
             return keys[int(self._inj_rng.integers(0, len(keys)))]
         return FORGE_SENDER
+
+    def _on_stream(self, st: _Sender, payload: bytes) -> bytes | None:
+        """``payload`` (a GROUND TRUTH or STOP) as the next datagram of ``st``'s stream: the next SEQ,
+        and on an authenticated stream signed as its newest datagram (None without ``sign``)."""
+        assert st.last is not None
+        seq = ((st.seq if st.seq is not None else -1) + 1) & 0xFFFF
+        st.seq = seq
+        payload = with_seq(payload, seq)
+        if inner_payload(st.last) is st.last:
+            return payload
+        return None if self.sign is None else self.sign(payload, st.last)
 
     # ------------------------------------------------------------------ counters
     def stats(self) -> dict[str, int]:

@@ -66,6 +66,19 @@ class Observation:
     auth: dict[str, Any] = field(default_factory=dict)  #: authenticated link counters (replay path)
     #: STATUS of each fresh output as the OBCU received it (extended output; None: not observable)
     fresh_status: np.ndarray | None = None
+    #: kill -9 and restart: kill_s, restart_s (run time of the new process's start), last_seq_before
+    #: (newest SEQ the OBCU had by then), first_seq_after (first SEQ it received after), lost_while_down
+    restart: dict[str, Any] = field(default_factory=dict)
+    stop_exit_s: float | None = None  #: from the real STOP's arrival to the listener's stop [s]
+    status_reasons: set[str] = field(default_factory=set)  #: reasons of the non-nominal status events
+    #: length of the run on the fresh_arrival axis (None: simulated_s; live: wall seconds, simulated_s /
+    #: speed, so that a live row at speed 10 ends at 9 s, not 90 s) [s]
+    run_s: float | None = None
+
+    @property
+    def end_s(self) -> float:
+        """Where the run ends on the arrival axis [s]."""
+        return self.simulated_s if self.run_s is None else self.run_s
 
 
 #: the trust checks' warning events (listener.senders, listener.seqbuf through the pipeline)
@@ -172,7 +185,8 @@ def _figures(obs: Observation, expect: dict[str, Any]) -> tuple[dict[str, Any], 
     # may also drop datagrams between the proxy and the listener (``net_drops``)
     accepted = sum(int(v) for v in inp.get("by_type", {}).values())
     legit = (ip.get("forwarded", 0) + ip["duplicated"] + ip["replayed"] + ip["forged_valid"]
-             + ip["forged_jump"] - ip["truncated"])
+             + ip["forged_jump"] + ip.get("forged_masquerade", 0) + ip.get("burst_replayed", 0)
+             - ip["truncated"])
     row["accepted_bad"] = max(0, accepted - legit) if obs.input_proxy else 0
     # issue 20: forgeries the sender table must reject (foreign GROUND TRUTH / STOP), SEQ jumps on a real
     # sender's stream (what they cost: datagrams dropped as late), and the warnings seen
@@ -184,6 +198,28 @@ def _figures(obs: Observation, expect: dict[str, Any]) -> tuple[dict[str, Any], 
     row["jump_drops"] = int(seq.get("jump_drops", 0))
     seen = obs.metrics.get("warnings_seen", {})
     row["trust_warnings"] = " ".join(f"{k}:{seen[k]}" for k in TRUST_WARNINGS if seen.get(k)) or "-"
+    row["warnings"] = " ".join(f"{k}:{v}" for k, v in sorted(seen.items())) or "-"
+    row["outputs_lost"], row["longest_gap_s"] = _outputs_lost(obs)
+    row["status_reasons"] = " ".join(sorted(_status_reasons(obs))) or "-"
+    rs = obs.restart
+    if rs:
+        row["kill_s"] = _fmt(rs.get("kill_s"))
+        row["restart_s"] = _fmt(rs.get("restart_s"))
+        row["resume_s"] = _fmt(_resume_s(obs))
+        row["seq_before"] = rs.get("last_seq_before", "-")
+        row["seq_after"] = rs.get("first_seq_after", "-")
+        row["lost_while_down"] = rs.get("lost_while_down", "-")
+    if "stop_exit_within_s" in expect or obs.stop_exit_s is not None:
+        row["stop_exit_s"] = _fmt(obs.stop_exit_s, 3)
+    res = obs.metrics.get("resilience", {})
+    row["gt_held"] = int(res.get("ground_truth", {}).get("held", 0))
+    gt = res.get("ground_truth", {})
+    row["gt_confirmed"] = sum(int(v) for k, v in gt.items() if k.startswith("confirmed"))
+    row["masquerade_inj"] = ip.get("forged_masquerade", 0)
+    row["burst_inj"] = ip.get("burst_replayed", 0)
+    if obs.auth:
+        rej = obs.auth.get("rejected", {})
+        row["auth_replay_rej"] = int(rej.get("auth_replay", 0)) + int(rej.get("auth_old", 0))
     row["net_drops"] = (max(0, int(ip.get("emitted", 0)) - int(inp.get("received", 0)))
                         if obs.input_proxy else 0)
     seq_resyncs = int(seq.get("resyncs", 0))
@@ -232,6 +268,49 @@ def _nominal_age_max(obs: Observation) -> str:
     return _fmt(float(age.max()) if age.size else None, 3)
 
 
+def _outputs_lost(obs: Observation) -> tuple[int, str]:
+    """(outputs missing, longest gap between fresh outputs [s]) from the first fresh output to the end:
+    each gap longer than 3 median intervals counts as gap / median - 1 missing outputs."""
+    t = np.sort(obs.fresh_arrival[np.isfinite(obs.fresh_arrival)])
+    if t.size < 3:
+        return 0, "n/a"
+    gaps = np.diff(np.append(t, max(float(t[-1]), obs.end_s)))
+    med = float(np.median(gaps[:-1]))
+    if med <= 0.0:
+        return 0, _fmt(float(gaps.max()))
+    long = gaps[gaps > 3.0 * med]
+    return int(round(float(np.sum(long / med - 1.0)))), _fmt(float(gaps.max()))
+
+
+def _status_reasons(obs: Observation) -> set[str]:
+    """Reasons carried by a non-nominal status: the listener's status events, and the fresh outputs'."""
+    out = set(obs.status_reasons)
+    if obs.fresh_reasons is not None and obs.fresh_status is not None:
+        for status, reasons in zip(obs.fresh_status.tolist(), obs.fresh_reasons, strict=True):
+            if status != 1:
+                out.update(reasons)
+    return out
+
+
+def _resume_s(obs: Observation) -> float | None:
+    """From the restart to the first fresh output after it [s] (inf: none came)."""
+    rs = obs.restart
+    if not rs or rs.get("restart_s") is None:
+        return None
+    after = obs.fresh_arrival[obs.fresh_arrival >= rs["restart_s"]]
+    return float(after.min() - rs["restart_s"]) if after.size else math.inf
+
+
+def _seq_continues(obs: Observation) -> bool:
+    from listener.serial import serial_gt
+
+    rs = obs.restart
+    before, after = rs.get("last_seq_before"), rs.get("first_seq_after")
+    if after is None:
+        return False
+    return before is None or serial_gt(int(after), int(before))
+
+
 def _checks(row, obs, expect, acc, fault_cov, reasons, deg, rec) -> dict[str, bool]:
     out: dict[str, bool] = {"crashes": obs.crashes <= int(expect.get("crashes", 0))}
     def le(value, bound):
@@ -273,9 +352,31 @@ def _checks(row, obs, expect, acc, fault_cov, reasons, deg, rec) -> dict[str, bo
         out["late_max"] = row["late_det"] <= expect["late_max"]
     if "outputs_to_end_s" in expect:
         last = float(obs.fresh_arrival.max()) if obs.fresh_arrival.size else -math.inf
-        out["outputs_to_end_s"] = obs.simulated_s - last <= expect["outputs_to_end_s"]
+        out["outputs_to_end_s"] = obs.end_s - last <= expect["outputs_to_end_s"]
     if "auth_bad" in expect:
         out["auth_bad"] = bool(obs.auth) and obs.auth.get("bad", 0) <= expect["auth_bad"]
+    if "resume_within_s" in expect:
+        out["resume_within_s"] = le(_resume_s(obs), expect["resume_within_s"])
+    if "seq_continues" in expect:
+        out["seq_continues"] = bool(obs.restart) and _seq_continues(obs)
+    if "warnings" in expect:
+        seen = obs.metrics.get("warnings_seen", {})
+        out["warnings"] = all(seen.get(w, 0) > 0 for w in expect["warnings"])
+    if "status_reasons" in expect:
+        out["status_reasons"] = set(expect["status_reasons"]) <= _status_reasons(obs)
+    if "max_gap_s" in expect:
+        gap = row["longest_gap_s"]
+        out["max_gap_s"] = gap != "n/a" and float(gap) <= expect["max_gap_s"]
+    if "stop_exit_within_s" in expect:
+        out["stop_exit_within_s"] = le(obs.stop_exit_s, expect["stop_exit_within_s"])
+    if "ground_truth_held_match" in expect:
+        out["ground_truth_held_match"] = (row["gt_held"] >= row["masquerade_inj"] > 0
+                                          and row["gt_confirmed"] == 0)
+    if "burst_rejected_match" in expect:
+        # a restart row's input counters are the restarted process's only: no net_drops figure there
+        net = 0 if obs.restart else row["net_drops"]
+        out["burst_rejected_match"] = (bool(obs.auth) and obs.auth.get("bad", 0) == 0
+                                       and row.get("auth_replay_rej", 0) + net >= row["burst_inj"] > 0)
     # process-level figures exist in live mode only: elsewhere the check is not run (and said so)
     for key, value in (("memory_growth_mb", obs.memory_growth_mb), ("latency_p99_ms", obs.latency_p99_ms),
                        ("latency_delta_ms", obs.latency_delta_ms)):
@@ -355,6 +456,8 @@ def pool(runs: list[Observation]) -> Observation:
         corruption=any(r.corruption for r in runs),
         auth=_summed([r.auth for r in runs]) if all(r.auth for r in runs) else {},
         fresh_status=status,
+        status_reasons=set().union(*(r.status_reasons for r in runs)),
+        run_s=None if all(r.run_s is None for r in runs) else sum(r.end_s for r in runs),
     )
 
 
@@ -385,6 +488,14 @@ def evaluate_pooled(runs: list[Observation], expect: dict[str, Any]) -> dict[str
     row, checks = _figures(pooled, expect)
     notes = [f"{len(runs)} seeds pooled (p95/max/coverage: "
              + ", ".join(f"{r['p95_m']}/{r['max_m']}/{r['coverage']}" for r, _ in singles) + ")"]
+    for key in ("resume_s", "stop_exit_s", "longest_gap_s"):  # per-run times: the worst seed's
+        vals = [r.get(key) for r, _ in singles if r.get(key) not in (None, "n/a", "-")]
+        if vals:
+            row[key] = max(vals, key=float)
+    row["outputs_lost"] = sum(int(r["outputs_lost"]) for r, _ in singles)  # not the seams between runs
+    if any("kill_s" in r for r, _ in singles):
+        row["kill_s"] = " ".join(str(r.get("kill_s")) for r, _ in singles)
+        row["seq_before"] = row["seq_after"] = row["restart_s"] = "per seed"
     for key in checks:
         if key not in POOLED_CHECKS:
             bad = [k for k, (_, c) in enumerate(singles) if not c.get(key, False)]

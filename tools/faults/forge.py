@@ -122,3 +122,35 @@ def truncate(rng: np.random.Generator, data: bytes) -> bytes:
     if not data:
         return data
     return data[: int(rng.integers(0, len(data)))]
+
+
+_MAGIC = 0xA5  #: first byte of an authenticated datagram (listener.auth)
+_AUTH_HEADER = 6  #: MAGIC, KEY_ID, epoch counter (4 bytes)
+
+
+def inner_payload(data: bytes) -> bytes | None:
+    """The INPUT datagram inside ``data``: ``data`` itself, or, for an authenticated datagram, the
+    payload after its header (tag included: only its first 3 bytes are read); None when too short."""
+    if data[:1] == bytes([_MAGIC]):
+        inner = data[_AUTH_HEADER:]
+        return inner if len(inner) >= 3 else None
+    return data if len(data) >= 3 else None
+
+
+def with_seq(payload: bytes, seq: int) -> bytes:
+    """An INPUT datagram with its SEQ (bytes 1..2) set to ``seq`` (mod 2^16)."""
+    return payload[:1] + struct.pack("<H", seq & 0xFFFF) + payload[3:]
+
+
+def module_signer(master_key: bytes, tag_bytes: int = 16):
+    """``sign(payload, template)``: ``payload`` wrapped as the authenticated ``template`` was, with the
+    key of the template's KEY_ID and its epoch counter (an attacker holding that module's key: a
+    cross-key forgery the sender table, not the MAC, must refuse)."""
+    from listener.auth import HEADER, wrap
+    from listener.auth_link import input_key
+
+    def sign(payload: bytes, template: bytes) -> bytes:
+        _, kid, epoch = HEADER.unpack_from(template)
+        return wrap(payload, input_key(master_key, kid), epoch, key_id=kid, tag_bytes=tag_bytes)
+
+    return sign

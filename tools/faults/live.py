@@ -35,6 +35,7 @@ import functools
 import json
 import math
 import os
+import signal
 import socket
 import subprocess
 import sys
@@ -207,10 +208,12 @@ def split_injections(imp: Impairments) -> tuple[Impairments, Impairments | None]
     """(what the input proxy does, what the injector process sends; None: nothing to inject).
 
     Garbage and forgeries from their own source go to the injector; forgeries posing as a real sender
-    (``forge_on_stream``) stay in the proxy, which alone holds that sender's upstream socket."""
+    (``forge_on_stream``) stay in the proxy, which alone holds that sender's upstream socket, and so do
+    shifted STROBEs (``strobe_shift``: dated on the stream's clock, which the proxy sees)."""
     import dataclasses
 
-    on_stream = imp.forge_on_stream and imp.forge_rate_hz > 0
+    # a forged STROBE is dated on the stream's clock, which only the proxy sees
+    on_stream = (imp.forge_on_stream or imp.forge_kind == "strobe_shift") and imp.forge_rate_hz > 0
     proxy = dataclasses.replace(imp, garbage_rate_hz=0.0,
                                 forge_rate_hz=imp.forge_rate_hz if on_stream else 0.0)
     forge = 0.0 if on_stream else imp.forge_rate_hz
@@ -327,6 +330,12 @@ def run_live(spec: ScenarioSpec, out: Path) -> Observation:
         listen_argv = _sfa("listen", "--bind", listen_host, "--port", str(listen_port), "--obcu", obcu_target,
                            "--set", "log.metrics_interval_s=1", "--set", f"clock.rate={spec.speed}",
                            *[a for o in overrides for a in ("--set", o)])
+        if spec.restart is not None:  # the restarted process resumes from the first one's checkpoints
+            if ns is not None:
+                raise CampaignError(f"{spec.name}: restart rows do not run in a network namespace")
+            ck_file = out / "listener-checkpoint.json"
+            ck_file.unlink(missing_ok=True)
+            listen_argv += ["--set", f'checkpoint.path="{ck_file}"']
         listener = start("listener", ns.wrap(listen_argv) if ns else listen_argv,
                          preexec_fn=_deployed_priority)
         wait_ready("listener", listener, READY_TIMEOUT_S)
@@ -347,7 +356,7 @@ def run_live(spec: ScenarioSpec, out: Path) -> Observation:
         if spec.input_link is not None and ns is None:  # in a namespace, netem impairs the input link
             p = start("proxy_in", _sfa("faults", "proxy", "--listen", f"{host}:{in_proxy_port}", "--forward",
                                        target, "--profile", str(out / "links.toml"), "--table", "input_proxy",
-                                       "--seed", str(spec.seed), "--idle-exit", "15"))
+                                       "--seed", str(spec.seed), "--idle-exit", "15", *auth_args))
             wait_ready("proxy_in", p, 60.0)
             target = f"{host}:{in_proxy_port}"
         if spec.output_link is not None:
@@ -369,8 +378,18 @@ def run_live(spec: ScenarioSpec, out: Path) -> Observation:
         if inject_imp is not None and "proxy_in" not in readers:
             notes.append("injections not run: they go with the input proxy, which netns mode replaces")
             inject_imp = None
-        while listener.poll() is None:
-            time.sleep(0.25)
+        kill_at = None if spec.restart is None else spec.restart.kill_at_s(spec.seed)
+        t_kill = t_restart = None
+        while listener.poll() is None or (t_kill is not None and t_restart is None):
+            time.sleep(0.25 if kill_at is None else 0.02)
+            if kill_at is not None and t_kill is None and time.monotonic() - t_start >= kill_at:
+                os.kill(listener.pid, signal.SIGKILL)  # kill -9: no last checkpoint, nothing flushed
+                t_kill = time.monotonic()
+                listener.wait(timeout=10.0)
+            if t_kill is not None and t_restart is None and time.monotonic() - t_kill >= spec.restart.down_s:
+                t_restart = time.monotonic()  # the same command line, configuration and checkpoint file
+                listener = start("listener2", listen_argv, preexec_fn=_deployed_priority)
+                listener_pid = listener.pid
             if inject_imp is not None and injector is None:  # the proxy's clock started: inject on it
                 t0 = [ev.get("t_monotonic") for _, ev in readers["proxy_in"].events
                       if ev.get("event") == "proxy_started"]
@@ -405,18 +424,25 @@ def run_live(spec: ScenarioSpec, out: Path) -> Observation:
         if reader.traceback:
             crashes += 1
             notes.append(f"{name}: traceback (see {name}.log)")
-    if listener.returncode not in (0, None) and not readers["listener"].traceback:
+    last_name = "listener2" if "listener2" in readers else "listener"
+    if listener.returncode not in (0, None) and not readers[last_name].traceback:
         crashes += 1
         notes.append(f"listener exit status {listener.returncode}")
-    lst = readers["listener"]
+    lst = readers[last_name]  # after a restart: the restarted process's figures
     exit_ev = lst.last("exit") or lst.last("metrics") or {}
     metrics = {k: v for k, v in exit_ev.items() if k in ("input", "sequencing", "clock", "merge", "filter",
-                                                          "link", "service", "senders")}
+                                                          "link", "service", "senders", "resilience")}
     seen: dict[str, int] = {}
-    for _, ev in lst.events:
-        if ev.get("level") == "warning":
-            seen[ev.get("event", "")] = seen.get(ev.get("event", ""), 0) + 1
-    metrics["warnings_seen"] = seen
+    for name in ("listener", "listener2"):  # the warning lines each process logged
+        for _, ev in readers[name].events if name in readers else ():
+            if ev.get("level") == "warning":
+                seen[ev.get("event", "")] = seen.get(ev.get("event", ""), 0) + 1
+    metrics["warnings_seen"] = dict(sorted(seen.items()))
+    status_reasons: set[str] = set()
+    for name in ("listener", "listener2"):
+        for _, ev in readers[name].events if name in readers else ():
+            if ev.get("event") == "status" and ev.get("status") != "nominal":
+                status_reasons.update(ev.get("reasons") or ())
     transitions = [(t - t_start, ev.get("state", "")) for t, ev in lst.events
                    if ev.get("event") == "link_state" and t >= t_start]
     reasons: set[str] = set()
@@ -486,6 +512,27 @@ def run_live(spec: ScenarioSpec, out: Path) -> Observation:
                                  f"({during - before:+.1f} ms)")
     elif inject_imp is not None:
         notes.append("injector: not started (the input proxy never logged its start)")
+    restart: dict = {}
+    if t_kill is not None:
+        restart = {"kill_s": t_kill - t_start, "restart_s": (t_restart - t_start) if t_restart else None}
+        all_arrival = est["time_s"] - obcu_offset
+        seqs = est["seq"].astype(int)
+        before = seqs[all_arrival < restart["restart_s"]] if t_restart else seqs
+        if before.size:
+            restart["last_seq_before"] = int(before[fresh_mask(before)][-1])
+        after = seqs[all_arrival >= restart["restart_s"]] if t_restart else seqs[:0]
+        if after.size:
+            restart["first_seq_after"] = int(after[0])
+        ready2 = [t for t, ev in readers["listener2"].events if ev.get("event") == "ready"] \
+            if "listener2" in readers else []
+        if ready2:
+            notes.append(f"restarted listener READY {ready2[0] - t_restart:.2f} s after its start")
+    stop_exit_s = None
+    seen_stop = [ev.get("t_monotonic") for _, ev in readers["proxy_in"].events
+                 if ev.get("event") == "proxy_stop_seen"] if "proxy_in" in readers else []
+    exits = [t for t, ev in lst.events if ev.get("event") == "exit"]
+    if seen_stop and exits and isinstance(seen_stop[-1], int | float):
+        stop_exit_s = exits[-1] - float(seen_stop[-1])  # the STOP passing the proxy -> the exit line read
     growth = None
     if base_rss is not None and rss:
         growth = max(v for _, v in rss) - base_rss
@@ -508,6 +555,8 @@ def run_live(spec: ScenarioSpec, out: Path) -> Observation:
         and latency_window["during_p99_ms"] is not None else None,
         reasons_seen=reasons, notes=notes,
         corruption=bool(spec.input_link and (spec.input_link.bitflip > 0 or spec.input_link.forge_on_stream)),
+        restart=restart, stop_exit_s=stop_exit_s, status_reasons=status_reasons,
+        run_s=float(sim.duration_s) / spec.speed,  # arrivals are wall seconds
     )
     if spec.auth:
         # live, the accepted datagrams cannot be matched one by one against the originals (the replay

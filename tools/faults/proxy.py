@@ -19,6 +19,7 @@ from collections.abc import Hashable
 from typing import Any, TextIO
 
 from tools.faults.core import FORGE_SENDER, FaultCore
+from tools.faults.forge import inner_payload
 
 _IMMEDIATE_S = 0.0005  #: emissions due within this are sent at once rather than on a timer [s]
 
@@ -75,6 +76,10 @@ class UdpFaultProxy:
         if first:  # the windows (blackouts, injections) count from here: say when, for alignment
             # (the loop's clock is time.monotonic(): the live campaign's injector process counts from it)
             print(json.dumps({"event": "proxy_started", "t_monotonic": self.core.start}), file=self.log,
+                  flush=True)
+        inner = inner_payload(data) if data else None
+        if inner is not None and inner[0] == 10:  # a STOP: when it passed (the live campaign times the exit)
+            print(json.dumps({"event": "proxy_stop_seen", "t_monotonic": self._loop.time()}), file=self.log,
                   flush=True)
         self._rearm()
 

@@ -88,7 +88,10 @@ def run_replay(spec: ScenarioSpec, out_dir: Path) -> Observation:
     with TrackDatabase.open(track_path) as track:
         trace = run_replay_path(sim.packets, track, cfg, input_link=spec.input_link,
                                 output_link=spec.output_link, obcu_config=obcu_cfg, seed=spec.seed,
-                                auth_master=campaign_master_key(spec) if spec.auth else None)
+                                auth_master=campaign_master_key(spec) if spec.auth else None,
+                                restart=None if spec.restart is None else (
+                                    spec.restart.kill_at_s(spec.seed), spec.restart.down_s),
+                                work_dir=out_dir)
     t0 = trace.start_s
     fresh = trace.fresh
     arrival = np.array([f.arrival_s for f in fresh]) - t0
@@ -113,13 +116,18 @@ def run_replay(spec: ScenarioSpec, out_dir: Path) -> Observation:
         corruption=bool(spec.input_link and (spec.input_link.bitflip > 0 or spec.input_link.forge_on_stream)),
     )
     obs.auth = trace.auth
+    obs.restart = trace.restart
+    obs.status_reasons = set(trace.status_reasons)
+    if trace.stop_s is not None and trace.stop_arrival_s is not None:
+        obs.stop_exit_s = trace.stop_s - trace.stop_arrival_s
     obs.fresh_status = np.array([f.status for f in fresh], dtype=np.int64)
     if trace.crash:
         obs.notes.append("crash: " + trace.crash.strip().splitlines()[-1])
     (out_dir / "trace.json").write_text(json.dumps({
         "metrics": trace.metrics, "input_proxy": trace.input_proxy, "output_proxy": trace.output_proxy,
         "obcu": trace.obcu_stats, "auth": trace.auth, "link_transitions": trace.link_transitions,
-        "events": trace.events, "crash": trace.crash,
+        "events": trace.events, "crash": trace.crash, "restart": trace.restart,
+        "stop_arrival_s": trace.stop_arrival_s, "stop_s": trace.stop_s,
     }, indent=1, default=str))
     return obs
 

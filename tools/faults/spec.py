@@ -21,6 +21,7 @@ sensor_faults = [{ kind = "gnss_outage", start_s = 40.0, end_s = 80.0 }]   # int
 listener = ["link.degraded_after_s=2.0"]
 expect = { crashes = 0, p95_m = 5.0, coverage = 0.99, losses_match = true }
 seeds = 10      # independent repetitions (simulator and link seeds + 0..9), figures pooled
+restart = { kill_window_s = [30.0, 60.0], down_s = 1.0 }   # kill -9 at a seeded time, restart 1 s later
 ```
 Every key is checked; an unknown one is an error naming it. ``expect`` keys are in :data:`EXPECT_KEYS`.
 """
@@ -61,7 +62,38 @@ EXPECT_KEYS = {
                               "sender table (true)",
     "late_max": "most datagrams dropped as late by the sequence buffers [count]",
     "outputs_to_end_s": "fresh outputs until at most this long before the scenario's end [s]",
+    "resume_within_s": "restart rows: first fresh output at most this long after the restart [s]",
+    "seq_continues": "restart rows: the first output after the restart has a SEQ newer (serial order) than "
+                     "every output before the kill, so the OBCU takes it as fresh (true)",
+    "warnings": "warning events the listener must have logged (each of them)",
+    "status_reasons": "reasons a non-nominal status must have carried (each of them; status events and, "
+                      "replay path, the outputs)",
+    "max_gap_s": "longest time between two fresh outputs, from the first to the end [s]",
+    "stop_exit_within_s": "the listener stopped at most this long after the STOP datagram arrived [s]",
+    "ground_truth_held_match": "every GROUND TRUTH forged as the control module held by plausibility, none "
+                               "confirmed (true)",
+    "burst_rejected_match": "authenticated link: every datagram of the replay burst rejected as a replay "
+                            "(true; record only datagrams the listener accepted before: a restart row's "
+                            "burst must come from before the earliest kill)",
 }
+
+
+@dataclass(frozen=True)
+class Restart:
+    """A ``kill -9`` of the listener and its restart (``restart`` table of a row).
+
+    Repetition k kills at a time drawn uniformly from ``kill_window_s`` with
+    ``numpy.random.default_rng([seed, 3])`` (the repetition's link seed), seconds from the run start;
+    the listener is started again ``down_s`` later with the same configuration and checkpoint file."""
+
+    kill_window_s: tuple[float, float]  #: (earliest, latest) kill time from the run start [s]
+    down_s: float = 1.0  #: from the kill to the new process's start [s]
+
+    def kill_at_s(self, seed: int) -> float:
+        import numpy as np
+
+        a, b = self.kill_window_s
+        return float(np.random.default_rng([seed, 3]).uniform(a, b))
 
 
 @dataclass(frozen=True)
@@ -96,6 +128,7 @@ class ScenarioSpec:
     #: p95 of one correlated 10-minute run varies by several percent from seed to seed; pooled, it is
     #: the statistic the bound means.
     seeds: int = 1
+    restart: Restart | None = None  #: kill -9 and restart of the listener (replay path and live)
 
     def repetition(self, k: int) -> ScenarioSpec:
         """Repetition ``k`` alone (0: this row's seeds)."""
@@ -126,7 +159,7 @@ class Campaign:
 
 _CAMPAIGN_KEYS = {"name", "duration_s", "seed", "speed", "listener"}
 _ROW_KEYS = {"name", "duration_s", "seed", "input_link", "output_link", "obcu", "sensor_faults", "listener",
-             "expect", "speed", "netns", "description", "timeout_s", "auth", "seeds"}
+             "expect", "speed", "netns", "description", "timeout_s", "auth", "seeds", "restart"}
 
 
 def _number(value: Any, where: str, low: float = 0.0, strict: bool = True) -> float:
@@ -178,6 +211,22 @@ def _obcu(data: Any, where: str) -> ObcuMisbehaviour:
     )
 
 
+def _restart(data: Any, where: str) -> Restart | None:
+    if data is None:
+        return None
+    if not isinstance(data, dict):
+        raise FaultConfigError(f"{where}: expected a table")
+    unknown = set(data) - {"kill_window_s", "down_s"}
+    if unknown:
+        raise FaultConfigError(f"{where}.{sorted(unknown)[0]}: unknown key (known: down_s, kill_window_s)")
+    w = data.get("kill_window_s")
+    if not isinstance(w, list) or len(w) != 2:
+        raise FaultConfigError(f"{where}.kill_window_s: expected [earliest_s, latest_s]")
+    a = _number(w[0], f"{where}.kill_window_s", 0.0, strict=False)
+    b = _number(w[1], f"{where}.kill_window_s", a, strict=False)
+    return Restart((a, b), _number(data.get("down_s", 1.0), f"{where}.down_s", 0.0, strict=False))
+
+
 def _overrides(value: Any, where: str) -> tuple[str, ...]:
     if not isinstance(value, list) or not all(isinstance(v, str) and "=" in v for v in value):
         raise FaultConfigError(f"{where}: expected a list of \"KEY=VALUE\" strings")
@@ -190,12 +239,12 @@ def _expect(value: Any, where: str) -> dict[str, Any]:
     for key, v in value.items():
         if key not in EXPECT_KEYS:
             raise FaultConfigError(f"{where}.{key}: unknown expectation (known: {', '.join(EXPECT_KEYS)})")
-        if key.endswith("_match"):
+        if key.endswith("_match") or key == "seq_continues":
             if v is not True:
                 raise FaultConfigError(f"{where}.{key}: only `true` is meaningful")
-        elif key == "reasons":
+        elif key in ("reasons", "warnings", "status_reasons"):
             if not isinstance(v, list) or not v or not all(isinstance(r, str) for r in v):
-                raise FaultConfigError(f"{where}.reasons: expected a non-empty list of reason names")
+                raise FaultConfigError(f"{where}.{key}: expected a non-empty list of names")
         else:
             _number(v, f"{where}.{key}", 0.0, strict=False)
     return dict(value)
@@ -295,7 +344,10 @@ def campaign_from_dict(data: dict[str, Any], source: str = "<dict>", root: Path 
             timeout_s=None if "timeout_s" not in row else _number(row["timeout_s"], f"{where}.timeout_s"),
             auth=_flag(row.get("auth", False), f"{where}.auth"),
             seeds=_seeds(row.get("seeds", 1), f"{where}.seeds"),
+            restart=_restart(row.get("restart"), f"{where}.restart"),
         )
+        if spec.restart is not None and spec.restart.kill_window_s[1] >= spec.duration_s:
+            raise FaultConfigError(f"{where}.restart.kill_window_s: must end before duration_s")
         try:
             scenario_from_dict(spec.scenario_dict(), source=f"{source}:{name}", base_dir=str(root))
         except SimError as exc:
