@@ -42,8 +42,8 @@ valid_messages = st.one_of(
     st.builds(ImuSample, seqs, acc, acc, acc, rate, rate, rate, epochs),
     st.builds(OdometerSample, seqs, st.floats(-150.0, 150.0), st.floats(1e-6, 50.0), epochs),
     # an epoch needs sigma_h (the bracketed GPS fields come in order): give one when an epoch is drawn
-    st.builds(lambda s, la, lo, al, q, sh, ep: GpsFix(s, la, lo, al, *q, 1.0 if sh is None and ep else sh,
-                                                      ep),
+    st.builds(lambda s, la, lo, al, q, sh, ep: GpsFix(s, la, lo, al, *q,
+                                                      1.0 if sh is None and ep is not None else sh, ep),
               seqs, st.floats(-90.0, 90.0), st.floats(-180.0, 180.0), st.floats(-500.0, 9000.0),
               st.none().map(lambda _: (None, None)) | st.tuples(st.integers(0, 8), st.integers(0, 255)),
               st.none() | st.floats(1e-3, 1e5), epochs),
