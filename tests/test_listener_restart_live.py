@@ -19,7 +19,8 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from test_listener_pipeline import PORTS, _datagrams
+from test_listener_pipeline import _datagrams
+from test_listener_plausibility import CTL, _with
 
 from interface_modules.presets import GPS_PRESETS, IMU_PRESETS, ODOMETER_PRESETS
 from listener import checkpoint as ck
@@ -126,6 +127,24 @@ def _listener(world, log: Path, lport: int, oport: int, *extra: str) -> subproce
     )
 
 
+def _run_stream(world, log: Path, rows, settle_s: float, *extra: str) -> Obcu:
+    """One listener (``extra`` its arguments) sent ``rows`` once it is READY, stopped with SIGTERM
+    ``settle_s`` after the last; the mock OBCU (closed) with what it received."""
+    lport, obcu = free_udp_port(), Obcu()
+    proc = _listener(world, log, lport, obcu.port, *extra)
+    try:
+        _wait_ready(proc, log)
+        sender = Sender(lport, rows, time.monotonic() + 0.1)
+        sender.start()
+        sender.join(timeout=60)
+        time.sleep(settle_s)
+    finally:
+        proc.terminate()
+        proc.wait(timeout=30)
+        obcu.close()
+    return obcu
+
+
 def _wait_ready(proc, log: Path, n: int = 1, timeout: float = 180.0) -> float:
     end = time.monotonic() + timeout
     while time.monotonic() < end:
@@ -227,20 +246,9 @@ def test_a_bad_checkpoint_is_refused_with_a_reason_and_ground_truth_awaited(worl
         ckpt.write_bytes(ck.encode(_valid_body(world, track="0123456789abcdef")))
     else:
         ckpt.write_bytes(ck.encode(_valid_body(world)).replace(b'"s_m":20.0', b'"s_m":900.0'))
-    lport, obcu = free_udp_port(), Obcu()
     log = tmp_path / "listener.log"
-    proc = _listener(world, log, lport, obcu.port, "--set", f'checkpoint.path="{ckpt}"')
-    try:
-        _wait_ready(proc, log)
-        dgrams = _datagrams(world["run"], start_seq=7)[:1500]  # starts with the GROUND TRUTH
-        sender = Sender(lport, dgrams, time.monotonic() + 0.1)
-        sender.start()
-        sender.join(timeout=60)
-        time.sleep(0.5)
-    finally:
-        proc.terminate()
-        proc.wait(timeout=30)
-        obcu.close()
+    dgrams = _datagrams(world["run"], start_seq=7)[:1500]  # starts with the GROUND TRUTH
+    obcu = _run_stream(world, log, dgrams, 0.5, "--set", f'checkpoint.path="{ckpt}"')
     events = _events(log)
     refused = [e for e in events if e["event"] == "checkpoint_refused"]
     reason = {"corrupt": "corrupt", "stale": "stale", "track": "track", "checksum": "checksum"}[kind]
@@ -252,25 +260,11 @@ def test_a_bad_checkpoint_is_refused_with_a_reason_and_ground_truth_awaited(worl
     assert json.loads(ckpt.read_text())["format"] == ck.FORMAT  # replaced by a good one (SIGTERM)
 
 
-CTL = ("127.0.0.1", PORTS["ctl"])  # forgeries leave from the control module's socket (spoofed source)
-
-
 def _shifted(rows, a0: float, a1: float, rate_hz: float, make) -> list:
+    """Forgeries from the control module's own socket (a spoofed source), at rate_hz from a0 to a1 s."""
     t0 = rows[0][0]
     n = int((a1 - a0) * rate_hz)
     return [(t0 + a0 + k / rate_hz + 0.0003, CTL, make(a0 + k / rate_hz)) for k in range(n)]
-
-
-def _resequenced(rows) -> list:
-    """The control module's SEQs renumbered in time order (the forgeries are inside its stream)."""
-    seq = None
-    out = []
-    for t, addr, p in sorted(rows, key=lambda r: r[0]):
-        if addr == CTL:
-            seq = int.from_bytes(p[1:3], "little") if seq is None else (seq + 1) & 0xFFFF
-            p = p[:1] + seq.to_bytes(2, "little") + p[3:]
-        out.append((t, addr, p))
-    return out
 
 
 def test_forged_ground_truth_and_shifted_strobes_from_the_control_socket(world, tmp_path):
@@ -285,21 +279,10 @@ def test_forged_ground_truth_and_shifted_strobes_from_the_control_socket(world, 
     forged = _shifted(dgrams, 6.0, 6.5, 2.0,
                       lambda t: encode_input(GroundTruth(0, 5.0, 0.0, 0.0, 2000.0, 1, epoch0 + t)))
     forged += _shifted(dgrams, 10.0, 20.0, 2.0, lambda t: encode_input(Strobe(0, epoch0 + t + 100.0)))
-    rows = _resequenced(dgrams + forged)
-    lport, obcu = free_udp_port(), Obcu()
+    rows = _with(dgrams, forged)  # inside the control module's SEQ stream
     log = tmp_path / "listener.log"
-    proc = _listener(world, log, lport, obcu.port, "--set", "link.extended=true")
-    try:
-        _wait_ready(proc, log)
-        sender = Sender(lport, rows[: next(i for i, r in enumerate(rows) if r[0] - rows[0][0] > 26.0)],
-                        time.monotonic() + 0.1)
-        sender.start()
-        sender.join(timeout=60)
-        time.sleep(0.3)
-    finally:
-        proc.terminate()
-        proc.wait(timeout=30)
-        obcu.close()
+    obcu = _run_stream(world, log, rows[: next(i for i, r in enumerate(rows) if r[0] - rows[0][0] > 26.0)],
+                       0.3, "--set", "link.extended=true")
     ext = [decode_output_extended(d) for _, d in obcu.rows]
     epochs = np.array([e.epoch for e in ext]) - epoch0
     err = _truth_error(world, obcu.rows)
