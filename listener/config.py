@@ -116,9 +116,10 @@ class LogConfig:
 class FilterSelection:
     """Which filter preset the listener runs (see ``sfa.presets``)."""
 
-    #: preset family: "model-matched" (the simulator's sensor settings) or "datasheet" (sensor classes
-    #: from datasheets, a digitised map's errors, the adaptive GNSS model; docs/filter.md)
-    presets: str = "model-matched"
+    #: preset family: "datasheet" (sensor classes from datasheets, a digitised map's errors, the adaptive
+    #: GNSS model; docs/filter.md) or "model-matched" (the simulator's own sensor settings: a result with
+    #: it on the simulator's data proves nothing, docs/filter.md "Presets")
+    presets: str = "datasheet"
     imu: str = "mems-train"  #: IMU preset name
     odometer: str = "wheel-odometer"  #: odometer preset name
     gps: str = "standalone"  #: GNSS preset name

@@ -1,6 +1,6 @@
 """Filter configurations: for classes of real sensors from their datasheets (``datasheet_config_for``),
-and matched to the simulator's own sensor settings (``filter_config_for``, the listener's and the
-replay's default today).
+the listener's and the replay's default, and matched to the simulator's own sensor settings
+(``filter_config_for``, ``presets = "model-matched"``).
 
 ``filter_config_for`` is model-matched: it is built from ``interface_modules.presets``, the objects the
 simulator draws its errors from, and assumes the database is the true path. Results with it on
@@ -281,7 +281,7 @@ PRESET_FAMILIES = ("model-matched", "datasheet")
 
 
 def config_for(
-    presets: str = "model-matched", imu: str = "mems-train", odometer: str = "wheel-odometer",
+    presets: str = "datasheet", imu: str = "mems-train", odometer: str = "wheel-odometer",
     gps: str = "standalone", **overrides: object
 ) -> FilterConfig:
     """The FilterConfig of a preset family (``PRESET_FAMILIES``): ``filter_config_for`` (model-matched,

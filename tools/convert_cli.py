@@ -15,6 +15,8 @@ import argparse
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
+    from sfa.presets import PRESET_FAMILIES
+
     sub = parser.add_subparsers(dest="source", required=True, metavar="{smartloc,dresden}")
     sl = sub.add_parser(
         "smartloc", help="smartLoc Berlin Potsdamer Platz (odometer + truth; GNSS synthesised)"
@@ -43,8 +45,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         p.add_argument("--force", action="store_true", help="replace existing outputs in OUT")
         p.add_argument("--evaluate", action="store_true",
                        help="replay the capture through the listener pipeline and print the figures")
+        p.add_argument("--eval-presets", choices=PRESET_FAMILIES, default=None,
+                       help="filter preset family for --evaluate (default: the listener's, datasheet)")
         p.add_argument("--eval-set", action="append", default=[], metavar="FIELD=VALUE",
-                       help="FilterConfig override for --evaluate (repeatable)")
+                       help="FilterConfig override for --evaluate, on top of the presets (repeatable)")
         p.add_argument("--eval-without", action="append", default=[], choices=("imu", "odometer", "gps"),
                        help="leave a sensor's datagrams out of --evaluate (repeatable)")
         p.add_argument("--eval-gps-gap", metavar="START:END",
@@ -95,7 +99,7 @@ def run(args: argparse.Namespace) -> int:
 
     from listener.config import ListenerConfig
     from sfa.errors import FilterConfigError
-    from sfa.presets import filter_config_for
+    from sfa.presets import config_for
     from tools.adapters.evaluate import (
         read_truth,
         run_pipeline,
@@ -106,11 +110,12 @@ def run(args: argparse.Namespace) -> int:
     from tools.field_values import parse_field_values
 
     overrides = parse_field_values(args.eval_set, "--eval-set")
+    lcfg = ListenerConfig()
+    sel = lcfg.filter
     try:
-        fcfg = filter_config_for(**overrides)
+        fcfg = config_for(args.eval_presets or sel.presets, sel.imu, sel.odometer, sel.gps, **overrides)
     except FilterConfigError as exc:
         raise ToolError(f"--eval-set: {exc}") from None
-    lcfg = ListenerConfig()
     if hold is not None:
         lcfg = replace(lcfg, merge=replace(lcfg.merge, hold_s=float(hold)))
     excluded = frozenset(MODULE_PORTS[m] for m in args.eval_without)
