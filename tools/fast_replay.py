@@ -16,9 +16,9 @@ clock at its arrival, the merge releasing each measurement at once (``merge.hold
 3. the rest is checked (each stream continues in sequence: the ingest pass's notes; where one does
    not, the listener's own sequence buffers, the prefix pipeline's ``StreamTable``, take every
    datagram as ``Pipeline.receive`` and its timer would, :func:`_sequence`, and their releases go on
-   in the merge's order), and one compiled pass advances the STROBE clock and dates the measurements
-   against it
-   (:func:`tools.fast_clock.run_clock`: the sensor-set "now" of every arrival, which dates a
+   in the merge's order), and one compiled pass advances the listener's own STROBE clock and dates
+   the measurements against it (:func:`tools.fast_clock.replay_clock` over
+   :meth:`listener.clock.StrobeClock.sensor_times`: the sensor-set "now" of every arrival, which dates a
    measurement without its epoch, and the listener's ``epoch_future`` and stale-output rules; a
    start with measurements before the first STROBE goes through the exact pipeline up to that
    STROBE, which empties the listener's undated queue),
@@ -271,7 +271,7 @@ def _options_reason(options) -> str:
     if cfg.merge.hold_s != 0.0:
         return f"merge.hold_s = {cfg.merge.hold_s} (the fast path needs 0)"
     if cfg.clock.rate != 1.0:
-        return f"clock.rate = {cfg.clock.rate} (the fast path's compiled clock has the nominal rate 1)"
+        return f"clock.rate = {cfg.clock.rate} (the fast path is checked at the nominal rate 1 only)"
     if cfg.link.max_rate_hz != 0.0:
         return f"link.max_rate_hz = {cfg.link.max_rate_hz} (the fast path needs 0)"
     return ""
@@ -560,7 +560,7 @@ def _latlon(ts, lat, lon, s, line, lid, every, out_lat, out_lon):
 # ---------------------------------------------------------------------------------------- main path
 def _replay_ingested(got, track, options, ingest_s: float = 0.0):
     from listener.codec import DecodeError, decode_input
-    from tools.fast_clock import clock_supported, replay_clock
+    from tools.fast_clock import replay_clock
     from tools.fast_ingest import (
         R_BAD,
         R_FRAMES,
@@ -638,8 +638,6 @@ def _replay_ingested(got, track, options, ingest_s: float = 0.0):
     why = _senders_reason(got, pipe, h)
     if why:
         return None, _info(False, why, h)
-    if not clock_supported():
-        return None, _info(False, "Python >= 3.12 sums floats compensated (STROBE clock fit)", h)
     g0 = int(np.searchsorted(got.g_row, h))
     seq = None
     if res[R_LAST_BREAK] >= h:  # a gap, duplicate or reordering: the listener's own sequence buffers
@@ -655,7 +653,7 @@ def _replay_ingested(got, track, options, ingest_s: float = 0.0):
         s_pos, s_ts, s_time = seq.s_pos, got.s_ts[seq.s_idx], got.s_time[seq.s_idx]
         n_strobes = int(seq.s_idx.size)
     else:
-        n_by_strobe = int(np.count_nonzero(undated[j0:]))  # run_clock dates them (never epoch_future)
+        n_by_strobe = int(np.count_nonzero(undated[j0:]))  # replay_clock dates them (never epoch_future)
         mrows, m_time, kind, t_s, vals = (
             a[j0:] for a in (got.m_row, got.m_time, got.kind, got.t_s, got.vals)
         )
