@@ -152,24 +152,10 @@ def resilience_reason(result, track, options) -> str:
     from listener.plausibility import OutputGuard, line_limits
 
     guard = OutputGuard(line_limits(track, cfg.plausibility.max_speed_mps), cfg.plausibility)
-    est = result.new_estimates()
-    for row in zip(est["epoch"].tolist(), est["arc_length"].tolist(), est["line_id"].tolist(),
-                   est["sigma"].tolist(), strict=True):
-        e = _Vetted(*row)
-        if guard.check(e) is not None:
-            return "resilience: an output the plausibility guard would not send"
-        guard.sent(e)
+    est = result.new_estimates()  # the outputs sent, in order: vetted as the listener vets each
+    if guard.first_refused(est["line_id"], est["epoch"], est["arc_length"], est["sigma"]) >= 0:
+        return "resilience: an output the plausibility guard would not send"
     return ""
-
-
-@dataclass(frozen=True, slots=True)
-class _Vetted:
-    """The fields of an estimate the output guard reads."""
-
-    epoch_s: float
-    arc_length_m: float
-    line_id: int | None
-    sigma_s_m: float
 
 
 _SLACK_S = 0.01  #: vital_reason errs this much towards the exact replay (the timer's margin is 1 ms) [s]
