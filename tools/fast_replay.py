@@ -393,34 +393,12 @@ def _sequence(got, pipe, h: int, n: int, stopped: bool, per_type: bool):
     seqs = (d[o + 1].astype(np.int64) | (d[o + 2].astype(np.int64) << 8)).tolist()
     times = got.row_t[rows].tolist()
     key_of = [keys[i] for i in inv.tolist()]
-    rel: list[int] = []
-    rel_t: list[float] = []
-    rel_b: list[int] = []
-    batch = 0
-    stop_row = n - 1 if stopped else -1
-    for r, k, sq, t in zip(rows.tolist(), key_of, seqs, times, strict=True):
-        nd = streams.next_deadline()
-        while nd is not None and nd <= t:
-            out = streams.poll(nd)
-            if out:
-                rel.extend(out)
-                rel_t.extend([nd] * len(out))
-                rel_b.extend([batch] * len(out))
-                batch += 1
-            nd = streams.next_deadline()
-        out = streams.push(k, sq, r, t)
-        if out:
-            rel.extend(out)
-            rel_t.extend([t] * len(out))
-            rel_b.extend([batch] * len(out))
-            batch += 1
-        if r == stop_row:
-            if r not in out:
-                return "a STOP held by a sequence buffer (exact replay)"
-            last_t = t
-            break
-    else:
-        last_t = float(got.row_t[n - 1])
+    stop_row = n - 1 if stopped else None
+    rel, rel_t, rel_b, stop_released = streams.run(key_of, seqs, rows.tolist(), times, stop_row)
+    batch = rel_b[-1] + 1 if rel_b else 0
+    if stop_released is False:
+        return "a STOP held by a sequence buffer (exact replay)"
+    last_t = float(got.row_t[n - 1])  # the STOP's arrival (the last row), or the end's
     out = streams.flush()  # the STOP's, or the end's (Pipeline.flush)
     rel.extend(out)
     rel_t.extend([last_t] * len(out))
