@@ -30,13 +30,19 @@ STROBEs agreeing with it (within ``max_step_s`` of it, carried at the rate) keep
 ramping STROBEs with the real ones never gets there (each real STROBE agrees with the model and
 clears the candidate); a real reset does. With ``confirm_s = 0`` the second agreeing STROBE adopts
 it (the rule before issue 20).
+
+The arithmetic lives once, in :mod:`listener.clock_core` (compiled kernels over one state array);
+this class is the listener's handle on it, and the fast replay advances the same state through
+:meth:`StrobeClock.take_strobes` and :meth:`StrobeClock.sensor_times`.
 """
 
 from __future__ import annotations
 
 import math
-from collections import deque
 
+import numpy as np
+
+from listener import clock_core as K
 from listener.config import ClockConfig
 
 
@@ -45,144 +51,102 @@ class StrobeClock:
 
     def __init__(self, config: ClockConfig | None = None) -> None:
         self._cfg = config or ClockConfig()
-        self._samples: deque[tuple[float, float]] = deque(maxlen=self._cfg.window_strobes)
-        self._slope = 0.0
-        self._ref_now = 0.0
-        self._intercept = 0.0
-        self.resets = 0  #: times the model was restarted by a clock step
-        self.strobes = 0  #: STROBEs used
-        self.unconfirmed = 0  #: STROBEs that disagreed with the model and were not (yet) confirmed
-        self.rejected = 0  #: STROBEs not taken (a step or beyond the drift bound, not yet persisted)
-        self.trouble_at: float | None = None  #: listener time of the last STROBE not taken
-        self._candidate: float | None = None
-        self._cand_since = 0.0  # listener time the candidate was first seen
-        self._anchor_t = 0.0  # start of the model (t_0) [listener s]
-        self._anchor_o = 0.0  # settled offset o_0 at t_0 [s]
-        self._anchor_r = math.nan  # settled rate (NaN while settling) [sensor s per listener s]
+        self._s = K.new_state(self._cfg)  #: the whole clock (listener.clock_core's layout)
+
+    # ------------------------------------------------------------------ the listener's calls
+    def on_strobe(self, timestamp_s: float, now: float) -> None:
+        """Take one STROBE: sensor-set ``timestamp_s`` received at listener time ``now``."""
+        K.on_strobe(self._s, float(timestamp_s), float(now))
+
+    def offset_at(self, now: float) -> float:
+        """Estimated ``sensor_time - now`` at listener time ``now`` [s]."""
+        return K.offset_at(self._s, float(now))
+
+    def to_sensor_time(self, now: float) -> float | None:
+        """Sensor-set time of a measurement that arrived at ``now``; None before the first STROBE."""
+        if self._s[K.C_N] == 0.0:
+            return None
+        return K.sensor_time(self._s, float(now))
 
     @property
     def synced(self) -> bool:
         """True once at least one STROBE has been seen."""
-        return bool(self._samples)
-
-    def on_strobe(self, timestamp_s: float, now: float) -> None:
-        """Take one STROBE: sensor-set ``timestamp_s`` received at listener time ``now``."""
-        if not math.isfinite(timestamp_s) or not math.isfinite(now):
-            return
-        offset = timestamp_s - now
-        cfg = self._cfg
-        if self._samples:
-            predicted = self.offset_at(now)
-            since = now - self._anchor_t
-            bad = abs(offset - predicted) > cfg.max_step_s
-            if not bad and since >= cfg.confirm_s:
-                if math.isnan(self._anchor_r):
-                    self._settle()
-                r = self._anchor_r
-                bad = offset > self._anchor_o + (r - 1.0 + cfg.max_drift * r) * since + cfg.max_jitter_s
-            if bad:
-                # a step, or faster than the drift bound: believed only once STROBEs agreeing with it
-                # persist for confirm_s with none agreeing with the model (one corrupted timestamp, or a
-                # forger's stream beside the real one, must not move the timebase)
-                cand = self._candidate
-                if cand is not None:  # agreeing with the candidate: within max_step_s of it (carried
-                    # at the nominal rate), so a lone source running off the drift bound is followed
-                    age = now - self._cand_since
-                    r = cfg.rate if math.isnan(self._anchor_r) else self._anchor_r
-                    if abs(offset - (r - 1.0) * age - cand) > cfg.max_step_s:
-                        cand = None
-                if cand is None:
-                    self._candidate = offset
-                    self._cand_since = now
-                    self.unconfirmed += 1
-                    self.rejected += 1
-                    self.trouble_at = now
-                    return
-                if now - self._cand_since < cfg.confirm_s:
-                    self.rejected += 1
-                    self.trouble_at = now
-                    return
-                self._samples.clear()
-                self.resets += 1
-        self._candidate = None
-        if not self._samples:
-            self._anchor_t, self._anchor_o, self._anchor_r = now, offset, math.nan
-        self._samples.append((now, offset))
-        self.strobes += 1
-        self._fit()
-
-    def _settle(self) -> None:
-        """End of the settling period: the rate the source has shown (the configured one unless it is
-        more than 2 % off: an accelerated or misconfigured source is then judged at its own rate) and
-        the least delayed offset at the model's start, o_0, on that rate."""
-        pts = self._samples
-        (t0, o0), (t1, o1) = pts[0], pts[-1]
-        rate = self._cfg.rate
-        r = rate
-        if t1 > t0:
-            raw = 1.0 + (o1 - o0) / (t1 - t0)
-            if abs(raw - rate) > 0.02 * rate:
-                r = raw
-        self._anchor_r = r
-        ta = self._anchor_t
-        self._anchor_o = max(o - (r - 1.0) * (t - ta) for t, o in pts)
+        return bool(self._s[K.C_N] != 0.0)
 
     @property
     def settled_rate(self) -> float | None:
         """The rate the drift bound is judged at (None while settling): ``clock.rate`` unless the source
         showed another one (more than 2 % off) while the model settled."""
-        return None if math.isnan(self._anchor_r) else self._anchor_r
+        r = float(self._s[K.C_ANCHOR_R])
+        return None if math.isnan(r) else r
 
-    def _fit(self) -> None:
-        pts = list(self._samples)
-        ref = pts[-1][0]
-        slope = 0.0
-        intercept = max(o for _, o in pts)
-        rate = self._cfg.rate
-        if rate != 1.0:
-            # an accelerated sensor clock: the offset grows by (rate - 1) s per second, from the start
-            slope = rate - 1.0
-            intercept = max(o - slope * (t - ref) for t, o in pts)
-        if len(pts) >= 10 and pts[-1][0] - pts[0][0] >= 20.0:
-            # Linear-programming skew estimate (Moon, Skelly & Towsley, 1999): the line above every
-            # point that minimises the summed vertical distance is the upper-hull edge spanning the
-            # mean time. Delay jitter only pushes points down, so it never moves that line.
-            hull = _upper_hull(pts)
-            t_mean = sum(t for t, _ in pts) / len(pts)
-            for (ta, oa), (tb, ob) in zip(hull, hull[1:], strict=False):
-                if ta <= t_mean <= tb and tb > ta:
-                    slope = (ob - oa) / (tb - ta)
-                    break
-            if rate == 1.0:
-                slope = max(-1e-3, min(1e-3, slope))  # |skew| <= 1000 ppm: anything larger is not a clock
-            else:  # the same bound around the nominal rate
-                slope = max(rate - 1.0 - 1e-3 * rate, min(rate - 1.0 + 1e-3 * rate, slope))
-            intercept = max(o - slope * (t - ref) for t, o in pts)
-        self._intercept = intercept
-        self._slope = slope
-        self._ref_now = ref
+    @property
+    def resets(self) -> int:
+        """Times the model was restarted by a clock step."""
+        return int(self._s[K.C_RESETS])
 
-    def offset_at(self, now: float) -> float:
-        """Estimated ``sensor_time - now`` at listener time ``now`` [s]."""
-        return self._intercept + self._slope * (now - self._ref_now)
+    @property
+    def strobes(self) -> int:
+        """STROBEs used."""
+        return int(self._s[K.C_STROBES])
 
-    def to_sensor_time(self, now: float) -> float | None:
-        """Sensor-set time of a measurement that arrived at ``now``; None before the first STROBE."""
-        if not self._samples:
-            return None
-        return now + self.offset_at(now)
+    @property
+    def unconfirmed(self) -> int:
+        """STROBEs that disagreed with the model and were not (yet) confirmed."""
+        return int(self._s[K.C_UNCONFIRMED])
 
+    @property
+    def rejected(self) -> int:
+        """STROBEs not taken (a step or beyond the drift bound, not yet persisted)."""
+        return int(self._s[K.C_REJECTED])
 
-def _upper_hull(points: list[tuple[float, float]]) -> list[tuple[float, float]]:
-    """Upper convex hull of points sorted by time (Andrew's monotone chain)."""
-    hull: list[tuple[float, float]] = []
-    for p in points:
-        while len(hull) >= 2:
-            (x1, y1), (x2, y2) = hull[-2], hull[-1]
-            # drop the middle point if it lies on or below the segment from hull[-2] to p
-            if (x2 - x1) * (p[1] - y1) - (y2 - y1) * (p[0] - x1) >= 0:
-                hull.pop()
-            else:
-                break
-        hull.append(p)
-    return hull
+    @property
+    def trouble_at(self) -> float | None:
+        """Listener time of the last STROBE not taken (None: none yet)."""
+        t = float(self._s[K.C_TROUBLE])
+        return None if math.isnan(t) else t
+
+    # ------------------------------------------------------------------ many STROBEs at once (replay)
+    def model(self) -> tuple[float, float, float, float]:
+        """(synced, intercept, slope, ref) of the current model, as :meth:`take_strobes` records it."""
+        s = self._s
+        return (1.0 if s[K.C_N] != 0.0 else 0.0, float(s[K.C_INTERCEPT]), float(s[K.C_SLOPE]),
+                float(s[K.C_REF]))
+
+    def take_strobes(self, timestamp: np.ndarray, now: np.ndarray) -> np.ndarray:
+        """:meth:`on_strobe` for every STROBE (``timestamp[k]`` received at ``now[k]``) in one compiled
+        loop; returns the model after each, (k, 4) rows as :meth:`model`."""
+        ts = np.ascontiguousarray(timestamp, dtype=np.float64)
+        out = np.zeros((ts.shape[0], 4))
+        K.run_strobes(self._s, ts, np.ascontiguousarray(now, dtype=np.float64), out)
+        return out
+
+    def sensor_times(self, strobes, queries) -> tuple[np.ndarray, np.ndarray]:
+        """Take the STROBEs ``strobes`` = (position, timestamp, arrival) and answer the queries
+        ``queries`` = (position, time a, time b) on the way, both in ascending position: the
+        :meth:`to_sensor_time` (NaN for None) at each query's two times, with the clock as the STROBEs
+        before its position left it. Every STROBE is taken."""
+        f = np.ascontiguousarray
+        q_pos = f(queries[0], dtype=np.int64)
+        out_a = np.empty(q_pos.shape[0])
+        out_b = np.empty(q_pos.shape[0])
+        K.sensor_times(self._s, f(strobes[0], dtype=np.int64), f(strobes[1], dtype=np.float64),
+                       f(strobes[2], dtype=np.float64), q_pos, f(queries[1], dtype=np.float64),
+                       f(queries[2], dtype=np.float64), out_a, out_b)
+        return out_a, out_b
+
+    def samples(self) -> list[tuple[float, float]]:
+        """The window: (arrival, offset) of each STROBE in it, oldest first."""
+        t, o = K.window_of(self._s)
+        return list(zip(t.tolist(), o.tolist(), strict=True))
+
+    # white-box names of the model's parts (tests/test_fast_clock.py compares two clocks by them)
+    _samples = property(samples)
+    _slope = property(lambda self: float(self._s[K.C_SLOPE]))
+    _ref_now = property(lambda self: float(self._s[K.C_REF]))
+    _intercept = property(lambda self: float(self._s[K.C_INTERCEPT]))
+    _candidate = property(lambda self: float(self._s[K.C_CAND]) if self._s[K.C_HAS_CAND] != 0.0 else None)
+    _cand_since = property(lambda self: float(self._s[K.C_CAND_SINCE]))
+    _anchor_t = property(lambda self: float(self._s[K.C_ANCHOR_T]))
+    _anchor_o = property(lambda self: float(self._s[K.C_ANCHOR_O]))
+    _anchor_r = property(lambda self: float(self._s[K.C_ANCHOR_R]))

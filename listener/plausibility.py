@@ -15,7 +15,8 @@
   ``max_speed x speed_margin x dt + step_allowance_m + 3 sigma`` (sigma of the last sent output).
   An output that violates either is not sent; the pipeline reports the status DEGRADED with the reason
   ``arc_off_line`` or ``arc_implausible_step`` meanwhile. An accepted (re)initialisation restarts the
-  comparison.
+  comparison. The rule is written once, in :mod:`listener.guard_core` (compiled kernels), which the
+  fast replay runs over every new estimate in one loop (:meth:`OutputGuard.first_refused`).
 """
 
 from __future__ import annotations
@@ -24,6 +25,9 @@ import math
 import re
 from typing import Any
 
+import numpy as np
+
+from listener import guard_core
 from listener.config import PlausibilityConfig
 
 OFF_LINE = "arc_off_line"
@@ -118,40 +122,45 @@ class GroundTruthGuard:
 
 
 class OutputGuard:
-    """Vets each output's arc length against its line and the last sent output."""
+    """Vets each output's arc length against its line and the last sent output (the rule is
+    :mod:`listener.guard_core`'s compiled kernels, over this guard's state)."""
 
     def __init__(
         self, limits: dict[int, tuple[float, float]], config: PlausibilityConfig | None = None
     ) -> None:
         self.cfg = config or PlausibilityConfig()
         self.limits = limits
-        self._last: tuple[int | None, float, float, float] | None = None  # line, epoch, arc, sigma
+        self._g, self._gi = guard_core.new_state(limits, self.cfg)
         self.counters = {OFF_LINE: 0, IMPLAUSIBLE_STEP: 0}
 
     def reset(self) -> None:
         """An accepted (re)initialisation: the next output is not compared with the last one."""
-        self._last = None
+        guard_core.reset(self._g)
 
     def check(self, est) -> str | None:
         """The reason ``est`` may not be published, or None (pure: nothing is counted)."""
         if not self.cfg.enabled or est.line_id is None:
             return None
-        length, vmax = self.limits.get(int(est.line_id), (math.inf, self.cfg.max_speed_mps))
-        s = est.arc_length_m
-        margin = self.cfg.arc_margin_m
-        if not -margin <= s <= length + margin:
-            return OFF_LINE
-        last = self._last
-        if last is not None and last[0] == est.line_id:
-            dt = abs(est.epoch_s - last[1])
-            sigma = last[3] if math.isfinite(last[3]) else 0.0
-            bound = vmax * self.cfg.speed_margin * dt + self.cfg.step_allowance_m + 3.0 * sigma
-            if not abs(s - last[2]) <= bound:
-                return IMPLAUSIBLE_STEP
-        return None
+        g, gi = self._g, self._gi
+        return _REASON[guard_core.check(g, gi, int(est.line_id), float(est.epoch_s), float(est.arc_length_m))]
 
     def count(self, reason: str) -> None:
         self.counters[reason] = self.counters.get(reason, 0) + 1
 
     def sent(self, est) -> None:
-        self._last = (est.line_id, est.epoch_s, est.arc_length_m, est.sigma_s_m)
+        line = est.line_id
+        guard_core.sent(self._g, self._gi, line is not None, 0 if line is None else int(line),
+                        float(est.epoch_s), float(est.arc_length_m), float(est.sigma_s_m))
+
+    def first_refused(self, line_id: np.ndarray, epoch_s: np.ndarray, arc_length_m: np.ndarray,
+                      sigma_s_m: np.ndarray) -> int:
+        """Outputs sent one after the other (``line_id`` -1: none), each vetted as the resilience stage
+        vets one (:meth:`check` when its epoch and arc length are finite, then :meth:`sent`), in one
+        compiled loop: the index of the first refused, or -1 (the guard is then left after the last)."""
+        f = np.ascontiguousarray
+        return int(guard_core.first_refused(self._g, self._gi, f(line_id, dtype=np.int64),
+                                            f(epoch_s, dtype=np.float64), f(arc_length_m, dtype=np.float64),
+                                            f(sigma_s_m, dtype=np.float64)))
+
+
+_REASON = {guard_core.OK: None, guard_core.OFF_LINE: OFF_LINE, guard_core.IMPLAUSIBLE_STEP: IMPLAUSIBLE_STEP}

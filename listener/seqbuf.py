@@ -735,11 +735,54 @@ class StreamTable(Generic[K, T]):
             out.extend(released)
         else:
             out = released
-        if buf.pending_count:
+        if buf._pending or buf._prob or buf._suspects:  # buf.pending_count, without the call
             self._active.add(key)
         else:
             self._active.discard(key)
         return out
+
+    def run(self, keys, seqs, items, times, stop_item=None):
+        """Take a recorded stream as the listener does live: before each datagram (key ``keys[i]``,
+        number ``seqs[i]``, item ``items[i]``, arrival ``times[i]``), :meth:`poll` at every deadline due by
+        its arrival (the listener's timer fires at :meth:`next_deadline`), then :meth:`push` it. Stops
+        after pushing ``stop_item`` (a STOP: the caller flushes then).
+
+        Returns (released items, the time each was released at, the release each came out of, numbered
+        from 0 in order, and for ``stop_item``: None if it was not pushed, else whether its own push
+        released it)."""
+        rel: list[T] = []
+        rel_t: list[float] = []
+        rel_b: list[int] = []
+        batch = 0
+        active = self._active
+        push, poll, next_deadline = self.push, self.poll, self.next_deadline
+        stop_released = None
+        for key, seq, item, t in zip(keys, seqs, items, times, strict=True):
+            if active:  # (else next_deadline() is None)
+                nd = next_deadline()
+                while nd is not None and nd <= t:
+                    out = poll(nd)
+                    if out:
+                        rel.extend(out)
+                        rel_t.extend([nd] * len(out))
+                        rel_b.extend([batch] * len(out))
+                        batch += 1
+                    nd = next_deadline()
+            out = push(key, seq, item, t)
+            if out:
+                if len(out) == 1:
+                    rel.append(out[0])
+                    rel_t.append(t)
+                    rel_b.append(batch)
+                else:
+                    rel.extend(out)
+                    rel_t.extend([t] * len(out))
+                    rel_b.extend([batch] * len(out))
+                batch += 1
+            if stop_item is not None and item == stop_item:
+                stop_released = stop_item in out
+                break
+        return rel, rel_t, rel_b, stop_released
 
     def poll(self, now: float) -> list[T]:
         """Release what is due in every stream (each stream's items in order, streams in no set order)."""

@@ -25,6 +25,10 @@ too (``sfa.batch`` does): on the JIT nothing changes, and in a compiled process 
 switches to the JIT as above, where numba's ``njit`` would fail to type the compiled kernels. A
 module whose kernels are exported must be in :data:`MODULES` and its source in :data:`SOURCES`.
 
+The listener's STROBE clock (:mod:`listener.clock_core`) and output guard (:mod:`listener.guard_core`)
+are in the extension too: their kernels are decorated with this :func:`njit`, and their sources are in
+the key like the filter's.
+
 ``SFA_ENGINE`` overrides the choice: ``jit`` (always the JIT, the previous behaviour, e.g. for the
 start-up benchmark's comparison), ``compiled`` (the compiled engine in every process, and required:
 ``sfa listen`` refuses to start without it, as the systemd unit asks, whose memory limit a JIT
@@ -46,10 +50,12 @@ import sysconfig
 from pathlib import Path
 
 #: the engine's sources, relative to the sfa package: the kernels and every sfa module they read at
-#: compile time (layout constants are frozen into the machine code), and the builder's entry points
-SOURCES = ("kernels.py", "gnss_noise.py", "layout.py", "engine_build.py")
+#: compile time (layout constants are frozen into the machine code), and the builder's entry points;
+#: kernels of another package by their path from here (the listener's STROBE clock and output guard)
+SOURCES = ("kernels.py", "gnss_noise.py", "layout.py", "engine_build.py", "../listener/clock_core.py",
+           "../listener/guard_core.py")
 #: the modules whose ``@njit`` functions the extension carries
-MODULES = ("sfa.kernels", "sfa.gnss_noise")
+MODULES = ("sfa.kernels", "sfa.gnss_noise", "listener.clock_core", "listener.guard_core")
 PREFIX = "_engine_"  #: extension module name: PREFIX + engine_key()
 ENV_MODE = "SFA_ENGINE"
 ENV_DIR = "SFA_ENGINE_DIR"
@@ -60,6 +66,14 @@ _registry: list[_Kernel] = []  # every function decorated here, in order
 
 def _package_dir() -> Path:
     return Path(__file__).resolve().parent
+
+
+def source_of(module: str) -> str:
+    """The :data:`SOURCES` entry of a module's file (``sfa.kernels`` -> ``kernels.py``,
+    ``listener.clock_core`` -> ``../listener/clock_core.py``)."""
+    pkg, rest = module.split(".", 1)
+    path = rest.replace(".", "/") + ".py"
+    return path if pkg == "sfa" else f"../{pkg}/{path}"
 
 
 def _dist_version(name: str) -> str:

@@ -11,9 +11,9 @@ and pycc links that code into the extension, so the extension computes the same 
 runs with ``NUMBA_SLP_VECTORIZE=1`` as ``sfa`` sets it, in a child process with an empty private
 cache, so nothing stale can leak in. Needs numba and a C compiler (pycc links a small C runtime).
 
-:data:`ENTRY_POINTS` lists every kernel called from Python (sfa.filter, the listener) with its
-argument types: contiguous float64 vectors (A1) and matrices (A2), int64 vectors (I1) and scalars.
-A kernel missing here still works in a compiled process (its first call switches to the JIT).
+:data:`ENTRY_POINTS` lists every kernel called from Python (sfa.filter, the listener's clock and output
+guard) with its argument types: contiguous float64 vectors (A1) and matrices (A2), int64 vectors (I1)
+and scalars. A kernel missing here still works in a compiled process (its first call switches to the JIT).
 """
 
 from __future__ import annotations
@@ -40,6 +40,11 @@ ENTRY_POINTS: dict[tuple[str, str], str] = {
     ("sfa.kernels", "interp_at"): "A1 A1 f8",
     ("sfa.kernels", "geom_at"): "A1 A1 A1 f8",
     ("sfa.gnss_noise", "share"): "A1 A1 b1",
+    ("listener.clock_core", "on_strobe"): "A1 f8 f8",
+    ("listener.clock_core", "offset_at"): "A1 f8",
+    ("listener.clock_core", "sensor_time"): "A1 f8",
+    ("listener.guard_core", "check"): "A1 I1 i8 f8 f8",
+    ("listener.guard_core", "sent"): "A1 I1 b1 i8 f8 f8 f8",
 }
 
 

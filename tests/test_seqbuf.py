@@ -474,6 +474,54 @@ def test_stream_table_keeps_streams_apart_and_polls_across_them():
     assert (st_.streams, st_.evictions, st_.totals.released, st_.totals.received) == (2, 0, 4, 4)
 
 
+@given(st.integers(0, 2**32 - 1), st.sampled_from([None, 150, 399]))
+def test_run_is_the_listeners_timer_and_push_loop(seed, stop_at):
+    """StreamTable.run (the fast replay's) equals polling at every due deadline before each push, as the
+    listener's timer and receive do: same releases, times, release numbers, counters; the STOP."""
+    rng = np.random.default_rng(seed)
+    rows = []  # three streams at 100, 50 and 1 Hz with loss, duplicates, reordering and a jump
+    for stream, period in (("imu", 0.01), ("odo", 0.02), ("gps", 1.0)):
+        seq = int(rng.integers(65536))
+        for k in range(int(4.0 / period)):
+            seq = (seq + (2 if rng.random() < 0.02 else 1) + (200 if rng.random() < 0.003 else 0)) & 0xFFFF
+            # on a 1/256 s grid with a 1/32 s hold: deadlines fall exactly on arrivals too
+            rows.append((round((k * period + float(rng.uniform(0.0, 0.004))) * 256) / 256, stream, seq))
+            if rng.random() < 0.02:
+                rows.append((rows[-1][0] + 1 / 256, stream, seq))
+    rows.sort()
+    for i in range(len(rows) - 1):
+        if rng.random() < 0.02:  # overtaken by its successor, arrival times kept ascending
+            (ta, *a), (tb, *b) = rows[i], rows[i + 1]
+            rows[i], rows[i + 1] = (ta, *b), (tb, *a)
+    keys, seqs, times = [r[1] for r in rows], [r[2] for r in rows], [r[0] for r in rows]
+    items = list(range(len(rows)))
+    cfg = SeqBufferConfig(hold_time_s=1 / 32)
+    ref: StreamTable = StreamTable(cfg)
+    want: list[tuple[int, float, int]] = []
+    batch, stop = 0, None
+    for key, seq, item, t in zip(keys, seqs, items, times, strict=True):
+        nd = ref.next_deadline()
+        while nd is not None and nd <= t:
+            out = ref.poll(nd)
+            want += [(x, nd, batch) for x in out]
+            batch += bool(out)
+            nd = ref.next_deadline()
+        out = ref.push(key, seq, item, t)
+        want += [(x, t, batch) for x in out]
+        batch += bool(out)
+        if item == stop_at:
+            stop = item in out
+            break
+    table: StreamTable = StreamTable(cfg)
+    rel, rel_t, rel_b, got_stop = table.run(keys, seqs, items, times, stop_at)
+    assert list(zip(rel, rel_t, rel_b, strict=True)) == want
+    assert got_stop == stop
+    assert table.stats == ref.stats
+    assert table.flush() == ref.flush()
+    if stop_at is None:  # the whole stream was not clean
+        assert min(ref.stats.totals.lost, ref.stats.totals.duplicates, ref.stats.totals.reordered) > 0
+
+
 def test_stream_key_scopes():
     addr = ("10.0.0.2", 7000)
     assert stream_key(addr, 1) == addr == stream_key(addr, 3)

@@ -16,9 +16,9 @@ clock at its arrival, the merge releasing each measurement at once (``merge.hold
 3. the rest is checked (each stream continues in sequence: the ingest pass's notes; where one does
    not, the listener's own sequence buffers, the prefix pipeline's ``StreamTable``, take every
    datagram as ``Pipeline.receive`` and its timer would, :func:`_sequence`, and their releases go on
-   in the merge's order), and one compiled pass advances the STROBE clock and dates the measurements
-   against it
-   (:func:`tools.fast_clock.run_clock`: the sensor-set "now" of every arrival, which dates a
+   in the merge's order), and one compiled pass advances the listener's own STROBE clock and dates
+   the measurements against it (:func:`tools.fast_clock.replay_clock` over
+   :meth:`listener.clock.StrobeClock.sensor_times`: the sensor-set "now" of every arrival, which dates a
    measurement without its epoch, and the listener's ``epoch_future`` and stale-output rules; a
    start with measurements before the first STROBE goes through the exact pipeline up to that
    STROBE, which empties the listener's undated queue),
@@ -152,24 +152,10 @@ def resilience_reason(result, track, options) -> str:
     from listener.plausibility import OutputGuard, line_limits
 
     guard = OutputGuard(line_limits(track, cfg.plausibility.max_speed_mps), cfg.plausibility)
-    est = result.new_estimates()
-    for row in zip(est["epoch"].tolist(), est["arc_length"].tolist(), est["line_id"].tolist(),
-                   est["sigma"].tolist(), strict=True):
-        e = _Vetted(*row)
-        if guard.check(e) is not None:
-            return "resilience: an output the plausibility guard would not send"
-        guard.sent(e)
+    est = result.new_estimates()  # the outputs sent, in order: vetted as the listener vets each
+    if guard.first_refused(est["line_id"], est["epoch"], est["arc_length"], est["sigma"]) >= 0:
+        return "resilience: an output the plausibility guard would not send"
     return ""
-
-
-@dataclass(frozen=True, slots=True)
-class _Vetted:
-    """The fields of an estimate the output guard reads."""
-
-    epoch_s: float
-    arc_length_m: float
-    line_id: int | None
-    sigma_s_m: float
 
 
 _SLACK_S = 0.01  #: vital_reason errs this much towards the exact replay (the timer's margin is 1 ms) [s]
@@ -272,7 +258,7 @@ def _options_reason(options) -> str:
     if cfg.merge.hold_s != 0.0:
         return f"merge.hold_s = {cfg.merge.hold_s} (the fast path needs 0)"
     if cfg.clock.rate != 1.0:
-        return f"clock.rate = {cfg.clock.rate} (the fast path's compiled clock has the nominal rate 1)"
+        return f"clock.rate = {cfg.clock.rate} (the fast path is checked at the nominal rate 1 only)"
     if cfg.link.max_rate_hz != 0.0:
         return f"link.max_rate_hz = {cfg.link.max_rate_hz} (the fast path needs 0)"
     return ""
@@ -408,34 +394,12 @@ def _sequence(got, pipe, h: int, n: int, stopped: bool, per_type: bool):
     seqs = (d[o + 1].astype(np.int64) | (d[o + 2].astype(np.int64) << 8)).tolist()
     times = got.row_t[rows].tolist()
     key_of = [keys[i] for i in inv.tolist()]
-    rel: list[int] = []
-    rel_t: list[float] = []
-    rel_b: list[int] = []
-    batch = 0
-    stop_row = n - 1 if stopped else -1
-    for r, k, sq, t in zip(rows.tolist(), key_of, seqs, times, strict=True):
-        nd = streams.next_deadline()
-        while nd is not None and nd <= t:
-            out = streams.poll(nd)
-            if out:
-                rel.extend(out)
-                rel_t.extend([nd] * len(out))
-                rel_b.extend([batch] * len(out))
-                batch += 1
-            nd = streams.next_deadline()
-        out = streams.push(k, sq, r, t)
-        if out:
-            rel.extend(out)
-            rel_t.extend([t] * len(out))
-            rel_b.extend([batch] * len(out))
-            batch += 1
-        if r == stop_row:
-            if r not in out:
-                return "a STOP held by a sequence buffer (exact replay)"
-            last_t = t
-            break
-    else:
-        last_t = float(got.row_t[n - 1])
+    stop_row = n - 1 if stopped else None
+    rel, rel_t, rel_b, stop_released = streams.run(key_of, seqs, rows.tolist(), times, stop_row)
+    batch = rel_b[-1] + 1 if rel_b else 0
+    if stop_released is False:
+        return "a STOP held by a sequence buffer (exact replay)"
+    last_t = float(got.row_t[n - 1])  # the STOP's arrival (the last row), or the end's
     out = streams.flush()  # the STOP's, or the end's (Pipeline.flush)
     rel.extend(out)
     rel_t.extend([last_t] * len(out))
@@ -561,7 +525,7 @@ def _latlon(ts, lat, lon, s, line, lid, every, out_lat, out_lon):
 # ---------------------------------------------------------------------------------------- main path
 def _replay_ingested(got, track, options, ingest_s: float = 0.0):
     from listener.codec import DecodeError, decode_input
-    from tools.fast_clock import clock_supported, replay_clock
+    from tools.fast_clock import replay_clock
     from tools.fast_ingest import (
         R_BAD,
         R_FRAMES,
@@ -639,8 +603,6 @@ def _replay_ingested(got, track, options, ingest_s: float = 0.0):
     why = _senders_reason(got, pipe, h)
     if why:
         return None, _info(False, why, h)
-    if not clock_supported():
-        return None, _info(False, "Python >= 3.12 sums floats compensated (STROBE clock fit)", h)
     g0 = int(np.searchsorted(got.g_row, h))
     seq = None
     if res[R_LAST_BREAK] >= h:  # a gap, duplicate or reordering: the listener's own sequence buffers
@@ -656,7 +618,7 @@ def _replay_ingested(got, track, options, ingest_s: float = 0.0):
         s_pos, s_ts, s_time = seq.s_pos, got.s_ts[seq.s_idx], got.s_time[seq.s_idx]
         n_strobes = int(seq.s_idx.size)
     else:
-        n_by_strobe = int(np.count_nonzero(undated[j0:]))  # run_clock dates them (never epoch_future)
+        n_by_strobe = int(np.count_nonzero(undated[j0:]))  # replay_clock dates them (never epoch_future)
         mrows, m_time, kind, t_s, vals = (
             a[j0:] for a in (got.m_row, got.m_time, got.kind, got.t_s, got.vals)
         )
