@@ -363,6 +363,7 @@ class Pipeline:
             if ref is not None and epoch > ref + self.cfg.clock.max_future_s:
                 # e.g. a flipped exponent bit: one such epoch would drag the filter far into the future
                 self.counters["rejected"] += 1
+                self.counters["rejected_after_sequencing"] += 1  # also in by_type: it was sequenced
                 self.rejected["epoch_future"] += 1
                 self.give_back_seq(item)
                 self.resilience.warn("epoch_future", item.arrival, epoch=epoch, sensor_now=ref)

@@ -230,6 +230,10 @@ def test_a_far_future_epoch_is_rejected_and_changes_nothing(track, run):
     got = [decode_output(o) for o in _feed(pipe, dgrams)]
     m = pipe.metrics()["input"]
     assert m["rejected_by_reason"] == {"epoch_future": 1}
+    # rejected after it was sequenced: counted once in the books (received = rejected on arrival +
+    # sequenced), its SEQ given back
+    assert m["rejected"] == m["rejected_after_sequencing"] == 1
+    assert m["received"] == m["rejected"] - m["rejected_after_sequencing"] + sum(m["by_type"].values())
     ref = [decode_output(o) for o in clean]
     # the only difference is the one missing IMU sample: the run continues, close to the clean one
     assert max(o.epoch for o in got) == max(o.epoch for o in ref)
