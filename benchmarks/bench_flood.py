@@ -260,4 +260,7 @@ def main() -> int:
 
 
 if __name__ == "__main__":
+    from sfa.cli import configure_numba_cache
+
+    configure_numba_cache()  # keyed on the sources: never a stale compiled kernel after an edit
     sys.exit(main())

@@ -48,4 +48,7 @@ def main(argv: list[str] | None = None) -> int:
 
 if __name__ == "__main__":
     sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+    from sfa.cli import configure_numba_cache
+
+    configure_numba_cache()  # keyed on the sources: never a stale compiled kernel after an edit
     raise SystemExit(main())

@@ -34,9 +34,9 @@ import numpy as np
 class AsBuiltConfig:
     """How the as-built path differs from the digitised line (all lengths in metres)."""
 
-    #: True: the truth runs on the as-built path; False (the default of the shipped scenarios until their
-    #: tests are re-pinned, docs/simulator.md): on the database itself (perfect-knowledge mode)
-    enabled: bool = False
+    #: True (the default since session 10): the truth runs on the as-built path; False: on the database
+    #: itself (perfect-knowledge mode: label any figure made with it as such, docs/simulator.md)
+    enabled: bool = True
     lateral_sigma_m: float = 0.5  #: standard deviation of the random lateral offset [m]
     min_wavelength_m: float = 40.0  #: shortest wavelength of the lateral offset [m]
     max_wavelength_m: float = 800.0  #: longest wavelength of the lateral offset [m]

@@ -146,7 +146,7 @@ def generate(
         raise SimError("seed must be >= 0")
     reference = open_line(sc) if track is None else track
     sc, line, to_reference = truth_path(sc, reference, seed)
-    traj = simulate_truth(sc, line, max_duration_s)
+    traj = simulate_truth(sc, planning_view(line, reference, to_reference), max_duration_s)
     if traj.t_s.size == 0:
         raise SimError("the scenario produced no motion (empty truth)")
     all_faults = scenario_faults(sc)
@@ -260,6 +260,33 @@ def truth_path(sc: Scenario, reference, seed: int):
 
 def _identity(s):
     return s
+
+
+class _PlanningView:
+    """The as-built path as the driver plans on it: its own arc length, grade and everything else, but
+    the curvature of the reference line (the design alignment that the line's curve speed limits are
+    set from) at the same place. The as-built path's short-wavelength lateral offset is survey error
+    and track irregularity: its curvature (a 0.14 m, 40 m wavelength component alone is a 290 m
+    radius) would make the driver brake for curves no speed board shows. The sensors still see the
+    as-built path's own curvature."""
+
+    def __init__(self, built, reference, to_reference) -> None:
+        self._built = built
+        self._reference = reference
+        self._to_reference = to_reference
+
+    def __getattr__(self, name):
+        return getattr(self._built, name)
+
+    def curvature_at(self, s_m):
+        return self._reference.curvature_at(self._to_reference(s_m))
+
+
+def planning_view(line, reference, to_reference):
+    """What the driver plans on (``_PlanningView``); the line itself without an as-built path."""
+    if line is reference:
+        return line
+    return _PlanningView(line, reference, to_reference)
 
 
 def _merge(columns, start_epoch_s: float, offset_s: float) -> list[Packet]:

@@ -113,4 +113,5 @@ def test_generated_truth_is_in_the_database_frame_on_the_as_built_path():
     # the same seed gives the same as-built world
     again = generate(sc)
     np.testing.assert_array_equal(again.truth["lat"], run.truth["lat"])
-    assert not scenario_from_dict(_scenario_dict()).track.as_built.enabled  # opt-in for now
+    # the default since session 10: perfect knowledge is the opt-in
+    assert scenario_from_dict(_scenario_dict()).track.as_built.enabled

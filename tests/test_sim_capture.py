@@ -4,6 +4,7 @@ numbers, timing model, control datagrams, truth.csv and events."""
 from __future__ import annotations
 
 import csv
+import dataclasses
 import io
 
 import dpkt
@@ -47,11 +48,17 @@ def test_same_seed_gives_byte_identical_captures(tmp_path, faults_run):
     other = generate(load_scenario("tram-faults"), seed=99, max_duration_s=DURATION_S)
     write_pcap(other, tmp_path / "c.pcap")
     assert (tmp_path / "c.pcap").read_bytes() != (tmp_path / "a.pcap").read_bytes()
-    # the motion does not depend on the seed; the sensor errors do
-    np.testing.assert_array_equal(other.truth["arc_length"], faults_run.truth["arc_length"])
+    # the seed draws the as-built path (the default) and the sensor errors: another world and other
+    # samples; in perfect-knowledge mode the motion does not depend on the seed
+    assert not np.array_equal(other.truth["lat"], faults_run.truth["lat"])
     imu_a = [p.payload for p in faults_run.packets_of("imu")]
     imu_c = [p.payload for p in other.packets_of("imu")]
     assert imu_a != imu_c
+    sc = load_scenario("tram-faults")
+    perfect = sc.with_overrides(track=dataclasses.replace(
+        sc.track, as_built=dataclasses.replace(sc.track.as_built, enabled=False)))
+    np.testing.assert_array_equal(generate(perfect, seed=99, max_duration_s=DURATION_S).truth["arc_length"],
+                                  generate(perfect, max_duration_s=DURATION_S).truth["arc_length"])
 
 
 def test_pcap_reads_back_with_dpkt_and_every_datagram_decodes(tmp_path, faults_run):
