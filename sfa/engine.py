@@ -47,9 +47,9 @@ from pathlib import Path
 
 #: the engine's sources, relative to the sfa package: the kernels and every sfa module they read at
 #: compile time (layout constants are frozen into the machine code), and the builder's entry points
-SOURCES = ("kernels.py", "gnss_noise.py", "layout.py", "engine_build.py")
+SOURCES = ("kernels.py", "gnss_noise.py", "layout.py", "bank.py", "engine_build.py")
 #: the modules whose ``@njit`` functions the extension carries
-MODULES = ("sfa.kernels", "sfa.gnss_noise")
+MODULES = ("sfa.kernels", "sfa.gnss_noise", "sfa.bank")
 PREFIX = "_engine_"  #: extension module name: PREFIX + engine_key()
 ENV_MODE = "SFA_ENGINE"
 ENV_DIR = "SFA_ENGINE_DIR"

@@ -12,7 +12,8 @@ runs with ``NUMBA_SLP_VECTORIZE=1`` as ``sfa`` sets it, in a child process with 
 cache, so nothing stale can leak in. Needs numba and a C compiler (pycc links a small C runtime).
 
 :data:`ENTRY_POINTS` lists every kernel called from Python (sfa.filter, the listener) with its
-argument types: contiguous float64 vectors (A1) and matrices (A2), int64 vectors (I1) and scalars.
+argument types: contiguous float64 vectors (A1), matrices (A2) and 3-d arrays (A3), int64 vectors (I1)
+and matrices (I2), and scalars.
 A kernel missing here still works in a compiled process (its first call switches to the JIT).
 """
 
@@ -40,14 +41,22 @@ ENTRY_POINTS: dict[tuple[str, str], str] = {
     ("sfa.kernels", "interp_at"): "A1 A1 f8",
     ("sfa.kernels", "geom_at"): "A1 A1 A1 f8",
     ("sfa.gnss_noise", "share"): "A1 A1 b1",
+    ("sfa.bank", "run_segment"): "I1 A1 A2 i8 b1 A2 A3 A2 I2 A2 I2 I1 I1 A1 A2 I1 A1 I1 A1 I1 A1 "
+                                 "I1 A1 A1 A1 A1 A2 I2 I1 i8",
+    ("sfa.bank", "prune"): "I1 I1 A2 A2 I2 A2 I1 A1 A1 I1 A1",
+    ("sfa.bank", "emit"): "i8 A2 A3 A2 I2 I1 I1 A1 I1 A1 A1 A1 A2 I2 I1 i8",
+    ("sfa.bank", "same_track"): "i8 i8 A2 A2 I2 A2 I1 f8",
+    ("sfa.bank", "twin"): "I1 i8 A2 A2 I2 i8",
+    ("sfa.bank", "empty_gyro_windows"): "I1 i8 A2",
+    ("sfa.bank", "_copy_slot"): "i8 i8 A2 A3 A2 I2 A2 I2 b1",
 }
 
 
 def _types():
     from numba import types as T
 
-    return {"A1": T.float64[::1], "A2": T.float64[:, ::1], "I1": T.int64[::1], "f8": T.float64,
-            "i8": T.int64, "b1": T.boolean}
+    return {"A1": T.float64[::1], "A2": T.float64[:, ::1], "A3": T.float64[:, :, ::1], "I1": T.int64[::1],
+            "I2": T.int64[:, ::1], "f8": T.float64, "i8": T.int64, "b1": T.boolean}
 
 
 def _compile(out_dir: Path, verbose: bool) -> Path:

@@ -174,9 +174,9 @@ def test_sources_cover_every_sfa_module_the_kernels_import():
 
 
 def test_entry_points_name_kernels_of_the_engine_modules():
-    from sfa import engine_build, gnss_noise, kernels
+    from sfa import bank, engine_build, gnss_noise, kernels
 
-    mods = {"sfa.kernels": kernels, "sfa.gnss_noise": gnss_noise}
+    mods = {"sfa.kernels": kernels, "sfa.gnss_noise": gnss_noise, "sfa.bank": bank}
     assert {m for m, _ in engine_build.ENTRY_POINTS} <= set(engine.MODULES)
     for mod in engine.MODULES:  # an exported module's source is in the key, or a stale engine could load
         assert mod.split(".", 1)[1] + ".py" in engine.SOURCES, mod
