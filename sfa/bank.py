@@ -460,6 +460,12 @@ class RunOutput:
     ost: np.ndarray
     seq0: int
 
+    @property
+    def args(self) -> tuple:
+        """The arguments of :func:`run_segment` after the bank's, in its order."""
+        return (self.u_out, self.u_nis, self.fresh_min, self.last, self.m_time, self.e_f, self.e_i, self.ost,
+                self.seq0)
+
     @classmethod
     def none(cls) -> RunOutput:
         """Outcomes of one measurement and no output rule (TrackFilter.process)."""
@@ -469,7 +475,13 @@ class RunOutput:
 
 
 class HypothesisBank:
-    """The slots and their live order (module docstring); grows when junction spawning needs room."""
+    """The slots and their live order (module docstring); grows when junction spawning needs room.
+
+    Every lineage's set of junctions branched at is interned (``spawn_sets``) with its junction range
+    in ``JS``; :meth:`compact` forgets the sets no live slot has (a daemon passes junctions for days)."""
+
+    #: interned junction sets above which :meth:`compact` rebuilds them from the live slots
+    MAX_SPAWN_SETS = 64
 
     def __init__(self, max_hypotheses: int) -> None:
         self.lines = Lines()
@@ -480,9 +492,11 @@ class HypothesisBank:
         self.junction_s = None  #: line_id -> [(junction key, s on the line)]: set by the filter
         self.order = np.zeros(0, dtype=np.int64)
         self.ns = np.zeros(2, dtype=np.int64)
+        self._args = None  # run_segment's arguments from X to work_f (rebuilt when an array is replaced)
         self._alloc(2 * max(int(max_hypotheses), 2) + 2)  # a reversal may double them before the prune
 
     def _alloc(self, cap: int) -> None:
+        self._args = None
         old = getattr(self, "X", None)
         n_old = 0 if old is None else old.shape[0]
         new = {
@@ -541,6 +555,7 @@ class HypothesisBank:
 
     def place(self, slot: int, line, spawned: frozenset) -> None:
         """Put ``slot`` on ``line`` with the lineage ``spawned`` (its junctions still to branch at)."""
+        self._args = None  # (a new line replaces the geometry arrays)
         self.IDX[I_LINE, slot] = self.lines.add(line)
         self.set_spawned(slot, spawned)
 
@@ -561,8 +576,23 @@ class HypothesisBank:
             s = np.array([s for key, s in items if key not in spawned], dtype=np.float64)
             got = (self.JS.shape[0], self.JS.shape[0] + s.shape[0])
             self.JS = np.concatenate((self.JS, s))
+            self._args = None
             self._junc[(line, sid)] = got
         return got
+
+    def compact(self) -> None:
+        """Keep only the junction sets (and their JS ranges) of the live slots, when more than
+        MAX_SPAWN_SETS are interned. Only the indices change: no result does."""
+        if len(self.spawn_sets) <= self.MAX_SPAWN_SETS:
+            return
+        live = [(h, self.spawned(h)) for h in self.slots()]
+        self.spawn_sets = [frozenset()]
+        self._spawn_ids = {frozenset(): 0}
+        self.JS = np.zeros(0)
+        self._junc = {}
+        self._args = None
+        for h, spawned in live:
+            self.set_spawned(h, spawned)
 
     def copy_slot(self, dst: int, src: int, keep_mem: bool = False) -> None:
         """Slot dst = slot src (its rewind memory empty unless ``keep_mem``)."""
@@ -574,9 +604,10 @@ class HypothesisBank:
             arr[slot] = 0
 
     def set_live(self, slots: list[int], reported: int) -> None:
-        """The live slots in order, ``slots[reported]`` the reported one."""
-        if len(slots) > self.cap:
-            self._alloc(max(2 * self.cap, len(slots)))
+        """The live slots in order, ``slots[reported]`` the reported one (the bank grows to keep room for
+        the reversals of all of them: :func:`run_segment` needs 2 x the live slots)."""
+        if 2 * len(slots) > self.cap:
+            self._alloc(2 * len(slots) + 2)
         self.order[: len(slots)] = slots
         self.ns[0] = len(slots)
         self.ns[1] = reported
@@ -597,16 +628,20 @@ class HypothesisBank:
         """The reported hypothesis's reversal is kept too."""
         return bool(twin(self.order, self.ns[0], self.X, self.AUX, self.IDX, self.reported))
 
+    def args(self, cfg: np.ndarray) -> tuple:
+        """:func:`run_segment`'s arguments from X to work_f (built once per change of an array)."""
+        a = self._args
+        if a is None or a[8] is not cfg:
+            ln = self.lines
+            a = (self.X, self.PP, self.AUX, self.CNT, self.MEM, self.IDX, self.order, self.ns, cfg, ln.G,
+                 ln.OFF, ln.LEN, ln.ID, self.JS, self.work_i, self.work_f)
+            self._args = a
+        return a
+
     def run(self, kind, t, vals, i0: int, stop_jumps: bool, cfg: np.ndarray, out: RunOutput):
-        """:func:`run_segment` on this bank; returns (i, why)."""
-        ln = self.lines
-        if self.cap < 2 * self.n:  # room for the reversals of every kept hypothesis
-            self._alloc(2 * self.n + 2)
-        i, why = run_segment(
-            kind, t, vals, i0, stop_jumps, self.X, self.PP, self.AUX, self.CNT, self.MEM, self.IDX,
-            self.order, self.ns, cfg, ln.G, ln.OFF, ln.LEN, ln.ID, self.JS, self.work_i, self.work_f,
-            out.u_out, out.u_nis, out.fresh_min, out.last, out.m_time, out.e_f, out.e_i, out.ost, out.seq0,
-        )  # fmt: skip
+        """:func:`run_segment` on this bank; returns (i, why). The live slots never exceed half the
+        capacity here (set_live; in the loop, each prune keeps at most K_MAX_HYPOTHESES)."""
+        i, why = run_segment(kind, t, vals, i0, stop_jumps, *self.args(cfg), *out.args)
         return int(i), int(why)
 
     def emit(self, i: int, cfg: np.ndarray, out: RunOutput) -> bool:

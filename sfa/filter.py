@@ -523,6 +523,7 @@ class TrackFilter:
             b.set_live(b.slots() + new, int(b.ns[1]))
             b.empty_gyro_windows()
             b.prune(self._cfg)
+        b.compact()
 
     def _copy_to(self, h: int, g: int, line: TrackArrays, s_m: float, keys: frozenset, flip: bool) -> None:
         """Slot g = a copy of slot h on ``line`` at ``s_m`` (h's P synced first); ``flip`` when arc length

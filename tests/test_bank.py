@@ -10,10 +10,11 @@ import pytest
 from interface_modules.presets import GPS_PRESETS, IMU_PRESETS, ODOMETER_PRESETS
 from sfa import batch
 from sfa import layout as L
-from sfa.bank import NEF, NEI, NOST, O_LAST, O_ROW, HypothesisBank, RunOutput, score
+from sfa.bank import I_JHI, I_JLO, NEF, NEI, NOST, O_LAST, O_ROW, HypothesisBank, RunOutput, score
 from sfa.filter import TrackFilter
 from sfa.presets import filter_config_for
 from sfa.synthetic import build_track_db, generate
+from sfa.track_arrays import TrackArrays
 from track_db import TrackDatabase
 
 IMU = IMU_PRESETS["mems-train"]
@@ -66,6 +67,7 @@ def test_run_over_packed_measurements_equals_process_one_by_one(db):
                     np.array([-math.inf, math.nan]), np.zeros(NOST, dtype=np.int64), 0)
     out.ost[O_LAST] = -1
     two = TrackFilter(db, cfg)
+    two._bank.MAX_SPAWN_SETS = 0  # compact after every spawn: the indices change, no result does
     i = 0
     handed = branched = 0
     while i < n:
@@ -117,3 +119,22 @@ def test_the_bank_grows_when_spawning_needs_room():
         taken.append(bank.new_slot(taken))
     assert len(set(taken)) == cap + 3 and 0 not in taken
     assert bank.cap > cap and bank.X[0, L.S] == 42.0 and bank.slots() == [0]
+
+
+def test_compact_keeps_only_the_junction_sets_of_live_slots():
+    """A lineage that passes junction after junction interns a new set each time; compact() forgets the
+    sets no live slot has, and a live slot keeps its junctions still to branch at."""
+    bank = HypothesisBank(2)
+    line = TrackArrays(7, 100.0, np.array([0.0, 100.0]), np.array([0.0, 100.0]), np.zeros(2), np.zeros(2),
+                       np.zeros(2))
+    bank.junction_s = lambda line_id: [(k, 10.0 * k) for k in range(8)]
+    bank.place(0, line, frozenset())
+    bank.set_live([0], 0)
+    for k in range(1, 6):
+        bank.set_spawned(0, frozenset(range(k)))  # branched at junctions 0 .. k - 1
+    assert len(bank.spawn_sets) == 6 and bank.JS.size > 3
+    bank.MAX_SPAWN_SETS = 2
+    bank.compact()
+    assert bank.spawn_sets == [frozenset(), frozenset(range(5))] and bank.spawned(0) == frozenset(range(5))
+    lo, hi = int(bank.IDX[I_JLO, 0]), int(bank.IDX[I_JHI, 0])
+    assert bank.JS.tolist() == bank.JS[lo:hi].tolist() == [50.0, 60.0, 70.0]
