@@ -32,6 +32,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 
@@ -460,9 +461,10 @@ class RunOutput:
     ost: np.ndarray
     seq0: int
 
-    @property
+    @cached_property
     def args(self) -> tuple:
-        """The arguments of :func:`run_segment` after the bank's, in its order."""
+        """The arguments of :func:`run_segment` after the bank's, in its order (the fields are never
+        reassigned: their arrays are written in place)."""
         return (self.u_out, self.u_nis, self.fresh_min, self.last, self.m_time, self.e_f, self.e_i, self.ost,
                 self.seq0)
 
