@@ -273,6 +273,12 @@ class FilterConfig:
         c[L.K_INIT_SIGMA_BG] = self.init_sigma_gyro_bias_radps
         c[L.K_LATE_TOL] = self.late_tolerance_s
         c[L.K_GPS_MAX_LOGLIK_NIS] = self.loglik_nis_cap
+        c[L.K_JUNCTION_WINDOW] = self.junction_window_m
+        c[L.K_PRUNE_LOG_RATIO] = self.prune_log_ratio
+        c[L.K_SWITCH_LOG_RATIO] = self.switch_log_ratio
+        c[L.K_MAX_HYPOTHESES] = self.max_hypotheses
+        c[L.K_REVERSAL] = 1.0 if self.reversal_hypotheses else 0.0
+        c[L.K_MAX_TIME_JUMP] = self.max_time_jump_s
         c[L.K_SNAP_PERIOD] = self.snapshot_period_s if self.slip_rewind else -1.0
         c[L.K_INIT_SIGMA_MY] = self.init_sigma_yaw_misalignment_rad
         c[L.K_INIT_SIGMA_SF] = self.init_sigma_accel_scale

@@ -52,10 +52,10 @@ from pathlib import Path
 #: the engine's sources, relative to the sfa package: the kernels and every sfa module they read at
 #: compile time (layout constants are frozen into the machine code), and the builder's entry points;
 #: kernels of another package by their path from here (the listener's STROBE clock and output guard)
-SOURCES = ("kernels.py", "gnss_noise.py", "layout.py", "engine_build.py", "../listener/clock_core.py",
-           "../listener/guard_core.py")
+SOURCES = ("kernels.py", "gnss_noise.py", "layout.py", "bank.py", "engine_build.py",
+           "../listener/clock_core.py", "../listener/guard_core.py")
 #: the modules whose ``@njit`` functions the extension carries
-MODULES = ("sfa.kernels", "sfa.gnss_noise", "listener.clock_core", "listener.guard_core")
+MODULES = ("sfa.kernels", "sfa.gnss_noise", "sfa.bank", "listener.clock_core", "listener.guard_core")
 PREFIX = "_engine_"  #: extension module name: PREFIX + engine_key()
 ENV_MODE = "SFA_ENGINE"
 ENV_DIR = "SFA_ENGINE_DIR"

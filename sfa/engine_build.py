@@ -11,9 +11,10 @@ and pycc links that code into the extension, so the extension computes the same 
 runs with ``NUMBA_SLP_VECTORIZE=1`` as ``sfa`` sets it, in a child process with an empty private
 cache, so nothing stale can leak in. Needs numba and a C compiler (pycc links a small C runtime).
 
-:data:`ENTRY_POINTS` lists every kernel called from Python (sfa.filter, the listener's clock and output
-guard) with its argument types: contiguous float64 vectors (A1) and matrices (A2), int64 vectors (I1)
-and scalars. A kernel missing here still works in a compiled process (its first call switches to the JIT).
+:data:`ENTRY_POINTS` lists every kernel called from Python (sfa.filter, sfa.bank, the listener's clock
+and output guard) with its argument types: contiguous float64 vectors (A1), matrices (A2) and 3-d arrays
+(A3), int64 vectors (I1) and matrices (I2), and scalars.
+A kernel missing here still works in a compiled process (its first call switches to the JIT).
 """
 
 from __future__ import annotations
@@ -45,14 +46,22 @@ ENTRY_POINTS: dict[tuple[str, str], str] = {
     ("listener.clock_core", "sensor_time"): "A1 f8",
     ("listener.guard_core", "check"): "A1 I1 i8 f8 f8",
     ("listener.guard_core", "sent"): "A1 I1 b1 i8 f8 f8 f8",
+    ("sfa.bank", "run_segment"): "I1 A1 A2 i8 b1 A2 A3 A2 I2 A2 I2 I1 I1 A1 A2 I1 A1 I1 A1 I1 A1 "
+                                 "I1 A1 A1 A1 A1 A2 I2 I1 i8",
+    ("sfa.bank", "prune"): "I1 I1 A2 A2 I2 A2 I1 A1 A1 I1 A1",
+    ("sfa.bank", "emit"): "i8 A2 A3 A2 I2 I1 I1 A1 I1 A1 A1 A1 A2 I2 I1 i8",
+    ("sfa.bank", "same_track"): "i8 i8 A2 A2 I2 A2 I1 f8",
+    ("sfa.bank", "twin"): "I1 i8 A2 A2 I2 i8",
+    ("sfa.bank", "empty_gyro_windows"): "I1 i8 A2",
+    ("sfa.bank", "_copy_slot"): "i8 i8 A2 A3 A2 I2 A2 I2 b1",
 }
 
 
 def _types():
     from numba import types as T
 
-    return {"A1": T.float64[::1], "A2": T.float64[:, ::1], "I1": T.int64[::1], "f8": T.float64,
-            "i8": T.int64, "b1": T.boolean}
+    return {"A1": T.float64[::1], "A2": T.float64[:, ::1], "A3": T.float64[:, :, ::1], "I1": T.int64[::1],
+            "I2": T.int64[:, ::1], "f8": T.float64, "i8": T.int64, "b1": T.boolean}
 
 
 def _compile(out_dir: Path, verbose: bool) -> Path:

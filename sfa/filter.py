@@ -1,21 +1,25 @@
 """TrackFilter: the per-message face of the track-constrained EKF, with line hypotheses at junctions.
 
-The mathematics lives in ``sfa.kernels`` (compiled); this class owns the state arrays of one or more
-line hypotheses, converts measurements into kernel calls, and turns the arrays into typed results.
-It never reads a clock: every time comes with a measurement or as an argument.
+The mathematics lives in ``sfa.kernels`` (compiled), the hypotheses and the rules that step, score,
+prune and mirror them in ``sfa.bank`` (compiled); this class converts measurements into runs of the
+bank's step loop, initialises the hypotheses, spawns branches at junctions (the track database) and
+turns the arrays into typed results. It never reads a clock: every time comes with a measurement or
+as an argument.
 """
 
 from __future__ import annotations
 
 import bisect
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 
-from sfa import engine, gnss_noise
+from sfa import engine
 from sfa import kernels as K
 from sfa import layout as L
+from sfa.bank import STOP_AFTER, HypothesisBank, RunOutput
+from sfa.batch import NV
 from sfa.config import FilterConfig
 from sfa.errors import FilterStateError, MeasurementTypeError
 from sfa.layout import FilterStatus, Outcome, reasons_from_bits
@@ -54,63 +58,6 @@ class Estimate:
     direction: int = 0  #: +1 the train's forward is increasing arc length, -1 decreasing, 0 unknown
 
 
-@dataclass(eq=False)
-class _Hypothesis:
-    """State arrays of one line hypothesis."""
-
-    line: TrackArrays
-    x: np.ndarray = field(default_factory=lambda: np.zeros(L.NX))
-    P: np.ndarray = field(default_factory=lambda: np.zeros((L.NX, L.NX)))
-    aux: np.ndarray = field(default_factory=lambda: np.zeros(L.NAUX))
-    cnt: np.ndarray = field(default_factory=lambda: np.zeros(L.NCNT, dtype=np.int64))
-    spawned: frozenset = frozenset()  #: junction keys this lineage already branched at
-    mem: np.ndarray = field(default_factory=lambda: np.zeros(L.NMEM))  #: rewind snapshots and IMU ring
-
-    def clone(self, line: TrackArrays | None = None, spawned: frozenset | None = None) -> _Hypothesis:
-        return _Hypothesis(self.line if line is None else line, self.x.copy(), self.P.copy(), self.aux.copy(),
-                           self.cnt.copy(), self.spawned if spawned is None else spawned, self.mem.copy())
-
-    @property
-    def direction(self) -> int:
-        return int(self.aux[L.A_DIR])
-
-    def sync(self, cfg: np.ndarray) -> None:
-        """Bring P up to the state time (``sfa.kernels.sync_block``): before P is copied and transformed."""
-        K.sync_block(self.x, self.P, self.aux, cfg, self.cnt)
-
-    def synced(self, cfg: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Copies of x and P brought up to the state time, leaving this hypothesis as it is (reading the
-        state must not change the filter's arithmetic: a replay that reads it less often gives the same)."""
-        x, P, aux = self.x.copy(), self.P.copy(), self.aux.copy()
-        K.sync_block(x, P, aux, cfg, self.cnt.copy())
-        return x, P
-
-    def copy_to(self, line: TrackArrays, s_m: float, keys: frozenset, cfg: np.ndarray,
-                flip: bool = False) -> _Hypothesis:
-        """A copy on ``line`` at ``s_m``; ``flip`` when arc length runs the other way there (s and v
-        change sign, and so do their covariance rows/columns). Syncs this hypothesis's P first."""
-        self.sync(cfg)
-        h = self.clone(line, keys)
-        h.x[L.S] = s_m
-        h.mem[:] = 0.0  # snapshots are on the other line: not reusable
-        if flip:
-            h.x[L.V] = -h.x[L.V]
-            h.aux[L.A_DIR] = -h.aux[L.A_DIR]
-            for i in (L.S, L.V):
-                h.P[i, :] = -h.P[i, :]
-                h.P[:, i] = -h.P[:, i]
-        return h
-
-    def mirrored(self, cfg: np.ndarray) -> _Hypothesis:
-        """Same place, opposite sense of travel (the train may reverse while standing). Syncs this
-        hypothesis's P first."""
-        self.sync(cfg)
-        h = self.clone()
-        h.mem[:] = 0.0
-        K.mirror(h.x, h.P, h.aux)
-        return h
-
-
 def _track_errors() -> tuple[type[BaseException], ...]:
     errors: list[type[BaseException]] = [KeyError, LookupError, ValueError]
     try:
@@ -126,7 +73,8 @@ class TrackFilter:
     """Track-constrained EKF (arc length, speed, sensor errors) with integrity and line hypotheses.
 
     ``process`` takes measurements in time order (late-data policy in docs/filter.md);
-    ``estimate`` reports the best hypothesis.
+    ``estimate`` reports the best hypothesis. The hypotheses live in a :class:`sfa.bank.HypothesisBank`;
+    ``run`` steps a run of packed measurements through the same compiled loop (the replay).
     """
 
     def __init__(self, track, config: FilterConfig | None = None) -> None:
@@ -137,11 +85,16 @@ class TrackFilter:
         self._cfg = self._config.to_array()
         self._z = float(self._cfg[L.K_Z_INTERVAL])
         self._lines: dict[int, TrackArrays] = {}
-        self._hyps: list[_Hypothesis] = []
-        self._reported = 0  # index into _hyps of the reported hypothesis
+        self._bank = HypothesisBank(self._config.max_hypotheses)
+        self._bank.junction_s = self._junction_s
         self._junctions = None  # built lazily: line_id -> list of (key, s_on_line, other_line, s_other)
         self._track_errors = _track_errors()
         self._jump_candidate = math.nan  # time of the last measurement rejected as a forward time jump
+        # a run of one measurement for process(): kind, time, values (sfa.batch.Packed layout), outcome
+        self._kind1 = np.zeros(1, dtype=np.int64)
+        self._t1 = np.zeros(1)
+        self._vals1 = np.zeros((1, NV))
+        self._out1 = RunOutput.none()
 
     # ------------------------------------------------------------------ public API
     @property
@@ -150,20 +103,36 @@ class TrackFilter:
 
     @property
     def initialised(self) -> bool:
-        return bool(self._hyps) and self._hyps[0].aux[L.A_INIT] != 0.0
+        b = self._bank
+        return b.n > 0 and b.AUX[b.order[0], L.A_INIT] != 0.0
 
     def warm_up(self) -> None:
         """Compile (or load from cache) every kernel on a throwaway two-vertex line."""
         line = TrackArrays(0, 100.0, np.array([0.0, 100.0]), np.array([0.0, 100.0]), np.zeros(2),
                            np.zeros(2), np.zeros(2))
-        h = _Hypothesis(line)
-        a = (h.x, h.P, h.aux, h.cnt, h.mem, self._cfg)
+        b = HypothesisBank(1)
+        b.place(0, line, frozenset())
+        a = (b.X[0], b.PP[0], b.AUX[0], b.CNT[0], b.MEM[0], self._cfg)
         K.step_init(*a, line.s_m, line.grade, 0.0, 1.0, 1.0, 1.0)
         K.step_imu(*a, line.s_m, line.grade, line.curvature_inv_m, 0.01, 0.0, 0.0, -9.8, 0.0, 0.0, 0.0)
         K.step_odo(*a, line.s_m, line.grade, 0.05, 1.0, 0.05)
-        K.step_gps(h.x, h.P, h.aux, h.cnt, self._cfg, line.s_m, line.east_m, line.north_m, line.grade,
-                   1.0, 1.0, 0.0, 1.5, 1)
-        K.status_of(h.x, h.P, h.aux, self._cfg, 1.0)
+        K.step_gps(b.X[0], b.PP[0], b.AUX[0], b.CNT[0], self._cfg, line.s_m, line.east_m, line.north_m,
+                   line.grade, 1.0, 1.0, 0.0, 1.5, 1)
+        K.status_of(b.X[0], b.PP[0], b.AUX[0], self._cfg, 1.0)
+        b.copy_slot(1, 0, keep_mem=True)
+        b.set_live([0, 1], 0)
+        kind = np.array([L.M_IMU, L.M_ODO, L.M_GPS], dtype=np.int64)
+        vals = np.zeros((3, NV))
+        vals[0, 2], vals[1, 1], vals[2, 2], vals[2, 3] = -9.8, 0.05, math.nan, 1.0
+        out = RunOutput(np.zeros(3, dtype=np.int64), np.zeros(3), np.zeros((7, 4)),
+                        np.zeros((4, 4), dtype=np.int64), np.zeros(3), np.zeros(3),
+                        np.array([-math.inf, math.nan]), np.zeros(6, dtype=np.int64), 0)
+        b.run(kind, np.array([1.01, 1.02, 1.03]), vals, 0, True, self._cfg, out)
+        b.prune(self._cfg)
+        b.emit(0, self._cfg, out)
+        b.same_track(0, 0, self._cfg)
+        b.direction_ambiguous()
+        b.empty_gyro_windows()
         if not engine.is_compiled():  # the batch loop is numba-only: not in the compiled engine
             from sfa.batch import warm_up_batch
 
@@ -171,7 +140,7 @@ class TrackFilter:
 
     def process(self, meas) -> Update:
         """Apply one measurement (in time order). Bad values are rejected and counted, never raised."""
-        if self._hyps and not isinstance(meas, InitMeas) and self._is_time_jump(meas):
+        if self._bank.n and not isinstance(meas, InitMeas) and self._is_time_jump(meas):
             kind = {ImuMeas: "imu", OdoMeas: "odo", GpsMeas: "gps"}.get(type(meas), "?")
             return Update(kind, float(meas.t_s), Outcome.INVALID)
         if isinstance(meas, ImuMeas):
@@ -184,6 +153,34 @@ class TrackFilter:
             return self._process_init(meas)
         raise MeasurementTypeError(f"not a filter measurement: {type(meas).__name__}")
 
+    def run(self, kind: np.ndarray, t: np.ndarray, vals: np.ndarray, i0: int,
+            out: RunOutput) -> tuple[int, int]:
+        """Step packed measurements (``sfa.batch.Packed``'s arrays) from row i0 in compiled code, as
+        ``process`` would one by one, with the listener's output rule after each (``out``: the result
+        columns, :class:`sfa.bank.RunOutput`). Stops before a row ``process`` must take: a GROUND TRUTH
+        or another kind, a row the time-jump rule looks at, any row while the filter is not initialised
+        or a time jump waits for confirmation; the caller runs ``process`` on it, then :meth:`emit`.
+        Junction branches are spawned here. Returns (the first row not processed, the rows after which
+        branches were spawned)."""
+        if not self.initialised or not math.isnan(self._jump_candidate):
+            return i0, 0
+        i = i0
+        branched = 0
+        while True:
+            i, why = self._bank.run(kind, t, vals, i, True, self._cfg, out)
+            if why != STOP_AFTER:
+                return i, branched
+            branched += 1
+            self._spawn_branches()  # the last statement of process(), then the row's output
+            self.emit(i, out)
+            i += 1
+
+    def emit(self, i: int, out: RunOutput) -> bool:
+        """The listener's output rule (``sfa.bank.emit``) on the estimate after row i; True when sent."""
+        if not self._bank.n:
+            return False
+        return self._bank.emit(i, self._cfg, out)
+
     def estimate(self, at_s: float | None = None, propagate: bool = False) -> Estimate:
         """The best hypothesis's estimate at the state time; ``at_s`` (later) only ages the time-outs.
 
@@ -191,72 +188,79 @@ class TrackFilter:
         alone, its covariance grown with it) on a copy, the filter left as it is. For an announcement
         between measurements (a silent sensor timed out): the position now, with the interval that
         prediction earns, not the last measurement's position under a new date."""
-        if not self._hyps:
+        b = self._bank
+        if not b.n:
             return Estimate(
                 epoch_s=math.nan, arc_length_m=math.nan, speed_mps=math.nan, sigma_s_m=math.inf,
                 interval_low_m=-math.inf, interval_high_m=math.inf, status=FilterStatus.INITIALISING,
                 reasons=("not_initialised",), line_id=None, lat_deg=math.nan, lon_deg=math.nan,
                 confidence=self._config.confidence, hypotheses=0,
             )
-        h = self._hyps[self._reported]
-        d = h.direction
-        t = float(h.aux[L.A_T_STATE])
+        r = b.reported
+        line = b.line(r)
+        d = b.direction(r)
+        x, P, aux = b.X[r], b.PP[r], b.AUX[r]
+        t = float(aux[L.A_T_STATE])
         t_eval = t if at_s is None or not math.isfinite(at_s) else max(t, float(at_s))
         if propagate and t_eval > t:
-            h = h.clone()
-            K.predict_to(h.x, h.P, h.aux, h.cnt, self._cfg, h.line.s_m, h.line.grade, t_eval)
-            h.sync(self._cfg)
+            x, P, aux, cnt = x.copy(), P.copy(), aux.copy(), b.CNT[r].copy()
+            K.predict_to(x, P, aux, cnt, self._cfg, line.s_m, line.grade, t_eval)
+            K.sync_block(x, P, aux, self._cfg, cnt)
             t = t_eval
-        code, bits, sigma = K.status_of(h.x, h.P, h.aux, self._cfg, t_eval)
-        s = float(h.x[L.S])
-        lat, lon = self._latlon(h.line, s)
-        pv = K.pending_var_v(h.P, h.aux)
+        code, bits, sigma = K.status_of(x, P, aux, self._cfg, t_eval)
+        s = float(x[L.S])
+        lat, lon = self._latlon(line, s)
+        pv = K.pending_var_v(P, aux)
         return Estimate(
             epoch_s=t,
             arc_length_m=s,
-            speed_mps=float(d * h.x[L.V]),
+            speed_mps=float(d * x[L.V]),
             sigma_s_m=float(sigma),
             interval_low_m=s - self._z * sigma,
             interval_high_m=s + self._z * sigma,
             status=FilterStatus(int(code)),
             reasons=reasons_from_bits(int(bits)),
-            line_id=h.line.line_id,
+            line_id=line.line_id,
             lat_deg=lat,
             lon_deg=lon,
             sigma_v_mps=math.sqrt(pv) if pv > 0 else 0.0,
             confidence=self._config.confidence,
-            hypotheses=len(self._hyps),
-            direction=d if len(self._hyps) == 1 or not self._direction_ambiguous() else 0,
+            hypotheses=b.n,
+            direction=d if b.n == 1 or not b.direction_ambiguous() else 0,
         )
-
-    def _direction_ambiguous(self) -> bool:
-        h = self._hyps[self._reported]
-        return any(g.line.line_id == h.line.line_id and g.direction != h.direction
-                   and abs(g.x[L.S] - h.x[L.S]) < 1.0 for g in self._hyps)
 
     def counters(self) -> dict[str, int]:
         """Per-sensor accepted/gated/late/invalid/timed-out counts and detections (reported hypothesis)."""
-        if not self._hyps:
+        if not self._bank.n:
             return dict.fromkeys(L.COUNTER_NAMES, 0)
-        cnt = self._hyps[self._reported].cnt
+        cnt = self._bank.CNT[self._bank.reported]
         return {name: int(cnt[i]) for i, name in enumerate(L.COUNTER_NAMES)}
 
     def diagnostics(self) -> dict[str, object]:
         """Counters plus the state, its standard deviations and the line hypotheses."""
         out: dict[str, object] = {"counters": self.counters(), "hypotheses": []}
-        if self._hyps:
-            h = self._hyps[self._reported]
-            out["state"] = {n: float(v) for n, v in zip(L.STATE_NAMES, h.x, strict=True)}
-            _, p_now = h.synced(self._cfg)
+        b = self._bank
+        if b.n:
+            r = b.reported
+            out["state"] = {n: float(v) for n, v in zip(L.STATE_NAMES, b.X[r], strict=True)}
+            _, p_now = self._synced(r)
             out["sigma"] = {n: float(math.sqrt(max(p_now[i, i], 0.0))) for i, n in enumerate(L.STATE_NAMES)}
-            out["last_nis_gps"] = float(h.aux[L.A_LAST_NIS_GPS])
-            out["last_nis_odo"] = float(h.aux[L.A_LAST_NIS_ODO])
+            out["last_nis_gps"] = float(b.AUX[r, L.A_LAST_NIS_GPS])
+            out["last_nis_odo"] = float(b.AUX[r, L.A_LAST_NIS_ODO])
             out["hypotheses"] = [
-                {"line_id": g.line.line_id, "direction": g.direction, "s_m": float(g.x[L.S]),
-                 "loglik": float(g.aux[L.A_LOGLIK])}
-                for g in self._hyps
+                {"line_id": b.line(g).line_id, "direction": b.direction(g), "s_m": float(b.X[g, L.S]),
+                 "loglik": float(b.AUX[g, L.A_LOGLIK])}
+                for g in b.slots()
             ]
         return out
+
+    def hypotheses(self) -> list[tuple[np.ndarray, np.ndarray, np.ndarray, int]]:
+        """Copies of every kept hypothesis's (state, covariance, aux, line id), the reported one first."""
+        b = self._bank
+        slots = b.slots()
+        r = b.reported
+        return [(b.X[g].copy(), b.PP[g].copy(), b.AUX[g].copy(), b.line(g).line_id)
+                for g in [r] + [g for g in slots if g != r]]
 
     def seed(self, t_s: float, line_id: int | None, arc_length_m: float, speed_mps: float, direction: int,
              sigma_s_m: float, sigma_v_mps: float,
@@ -286,26 +290,37 @@ class TrackFilter:
                                           direction=int(direction) or None))
         if upd.outcome != Outcome.INITIALISED:
             return upd
-        for h in self._hyps:
+        b = self._bank
+        for h in b.slots():
+            x, P = b.X[h], b.PP[h]
             for i, (value, sigma) in slots.items():
-                h.x[i] = value
-                h.P[i, :] = 0.0
-                h.P[:, i] = 0.0
-                h.P[i, i] = sigma * sigma
-            h.P[L.S, L.S] = float(sigma_s_m) ** 2
-            h.P[L.V, L.V] = float(sigma_v_mps) ** 2
+                x[i] = value
+                P[i, :] = 0.0
+                P[:, i] = 0.0
+                P[i, i] = sigma * sigma
+            P[L.S, L.S] = float(sigma_s_m) ** 2
+            P[L.V, L.V] = float(sigma_v_mps) ** 2
         return upd
 
     def state(self) -> tuple[np.ndarray, np.ndarray]:
         """Copies of the reported hypothesis's state vector and covariance (indices in sfa.layout)."""
-        if not self._hyps:
+        if not self._bank.n:
             raise FilterStateError("the filter is not initialised")
-        return self._hyps[self._reported].synced(self._cfg)
+        return self._synced(self._bank.reported)
+
+    def _synced(self, slot: int) -> tuple[np.ndarray, np.ndarray]:
+        """Copies of x and P of ``slot`` brought up to the state time, leaving the slot as it is (reading
+        the state must not change the filter's arithmetic: a replay that reads it less often gives the
+        same)."""
+        b = self._bank
+        x, P, aux = b.X[slot].copy(), b.PP[slot].copy(), b.AUX[slot].copy()
+        K.sync_block(x, P, aux, self._cfg, b.CNT[slot].copy())
+        return x, P
 
     # ------------------------------------------------------------------ measurements
     def _process_init(self, m: InitMeas) -> Update:
         try:
-            line = self._line_arrays(m.line_id)
+            line = self.line_arrays(m.line_id)
         except self._track_errors:
             return Update("init", m.t_s, Outcome.INVALID)
         try:
@@ -313,23 +328,35 @@ class TrackFilter:
             directions = (1.0, -1.0) if m.direction is None else (float(m.direction),)
         except (TypeError, ValueError):
             return Update("init", math.nan, Outcome.INVALID)
-        new: list[_Hypothesis] = []
+        b = self._bank
+        new: list[int] = []
         code = K.O_INVALID
         for d in directions:
-            if self._hyps:
-                base = self._hyps[self._reported]
-                h = base.clone(line, frozenset())
+            h = b.new_slot(new)
+            if b.n:
+                b.copy_slot(h, b.reported, keep_mem=True)
             else:
-                h = _Hypothesis(line)
-            code = K.step_init(h.x, h.P, h.aux, h.cnt, h.mem, self._cfg, line.s_m, line.grade, t, s, v, d)
+                b.clear_slot(h)
+            b.place(h, line, frozenset())
+            code = K.step_init(b.X[h], b.PP[h], b.AUX[h], b.CNT[h], b.MEM[h], self._cfg, line.s_m, line.grade,
+                               t, s, v, d)
             if code != K.O_INITIALISED:
                 break
             new.append(h)
         if code == K.O_INITIALISED:
-            self._hyps = new
-            self._reported = 0
+            b.set_live(new, 0)
             self._spawn_branches()
         return Update("init", t, Outcome(code))
+
+    def _step(self, kind: int, t: float) -> tuple[int, float]:
+        """Run the bank's loop over the one measurement in ``_vals1``; (outcome, NIS)."""
+        self._kind1[0] = kind
+        self._t1[0] = t
+        out = self._out1
+        _, why = self._bank.run(self._kind1, self._t1, self._vals1, 0, False, self._cfg, out)
+        if why == STOP_AFTER:
+            self._spawn_branches()
+        return int(out.u_out[0]), float(out.u_nis[0])
 
     def _process_imu(self, m: ImuMeas) -> Update:
         try:
@@ -338,40 +365,23 @@ class TrackFilter:
             t = float(m.t_s)
         except (TypeError, ValueError):
             return self._invalid("imu", m, L.C_IMU_BAD)
-        if not self._hyps:
+        if not self._bank.n:
             return Update("imu", t, Outcome.NOT_INITIALISED)
-        code = K.O_INVALID
-        for i, h in enumerate(self._hyps):
-            c = K.step_imu(h.x, h.P, h.aux, h.cnt, h.mem, self._cfg, h.line.s_m, h.line.grade,
-                           h.line.curvature_inv_m, t, fx, fy, fz, wx, wy, wz)
-            if i == self._reported:
-                code = c
-        if len(self._hyps) > 1 and all(h.aux[L.A_LAST_NIS_GYRO] >= 0.0 for h in self._hyps) \
-                and any(h.aux[L.A_GYRO_OK] != 0.0 for h in self._hyps):
-            self._score(L.A_LAST_NIS_GYRO)  # the yaw rate tells branches apart by their curvature
+        v = self._vals1[0]
+        v[0], v[1], v[2], v[3], v[4], v[5] = fx, fy, fz, wx, wy, wz
+        code, _ = self._step(L.M_IMU, t)
         return Update("imu", t, Outcome(code))
 
     def _process_odo(self, m: OdoMeas) -> Update:
         try:
-            t, v, sg = float(m.t_s), float(m.speed_mps), float(m.sigma_mps)
+            t, speed, sg = float(m.t_s), float(m.speed_mps), float(m.sigma_mps)
         except (TypeError, ValueError):
             return self._invalid("odo", m, L.C_ODO_BAD)
-        if not self._hyps:
+        if not self._bank.n:
             return Update("odo", t, Outcome.NOT_INITIALISED)
-        code = K.O_INVALID
-        accepted_by_any = False
-        for i, h in enumerate(self._hyps):
-            c = K.step_odo(h.x, h.P, h.aux, h.cnt, h.mem, self._cfg, h.line.s_m, h.line.grade, t, v, sg)
-            accepted_by_any |= c == K.O_ACCEPTED
-            if i == self._reported:
-                code = c
-        nis = float(self._hyps[self._reported].aux[L.A_LAST_NIS_ODO])
-        if len(self._hyps) > 1 and accepted_by_any:
-            self._score(L.A_LAST_NIS_ODO)
-        if self._hyps[self._reported].aux[L.A_STILL] != 0.0 and self._config.reversal_hypotheses:
-            self._spawn_reversals()
-        if self._junction_map() and code == K.O_ACCEPTED:
-            self._spawn_branches()
+        v = self._vals1[0]
+        v[0], v[1] = speed, sg
+        code, nis = self._step(L.M_ODO, t)
         return Update("odo", t, Outcome(code), nis)
 
     def _process_gps(self, m: GpsMeas) -> Update:
@@ -381,7 +391,7 @@ class TrackFilter:
             fq = -1 if m.fix_quality is None else int(m.fix_quality)
         except (TypeError, ValueError):
             return self._invalid("gps", m, L.C_GPS_BAD)
-        if not self._hyps:
+        if not self._bank.n:
             return Update("gps", t, Outcome.NOT_INITIALISED)
         if fq == 0:
             east = north = 0.0
@@ -390,22 +400,9 @@ class TrackFilter:
         else:
             east, north = self._track.to_local(lat, lon)
             east, north = float(east), float(north)
-        code = K.O_INVALID
-        accepted_by_any = False
-        rep_aux = self._hyps[self._reported].aux
-        for i, h in enumerate(self._hyps):  # one GNSS model, the reported hypothesis's (gnss_noise.share)
-            gnss_noise.share(h.aux, rep_aux, i == self._reported)
-        for i, h in enumerate(self._hyps):
-            c = K.step_gps(h.x, h.P, h.aux, h.cnt, self._cfg, h.line.s_m, h.line.east_m, h.line.north_m,
-                           h.line.grade, t, east, north, sigma_h, fq)
-            accepted_by_any |= c == K.O_ACCEPTED
-            if i == self._reported:
-                code = c
-        nis = float(self._hyps[self._reported].aux[L.A_LAST_NIS_GPS])
-        if len(self._hyps) > 1 and accepted_by_any:
-            self._score(L.A_LAST_NIS_GPS)
-        if self._junction_map():
-            self._spawn_branches()
+        v = self._vals1[0]
+        v[0], v[1], v[2], v[3] = east, north, sigma_h, float(fq)
+        code, nis = self._step(L.M_GPS, t)
         return Update("gps", t, Outcome(code), nis)
 
     def _is_time_jump(self, meas) -> bool:
@@ -416,7 +413,7 @@ class TrackFilter:
             t = float(meas.t_s)
         except (TypeError, ValueError, AttributeError):
             return False
-        t_state = float(self._hyps[self._reported].aux[L.A_T_STATE])
+        t_state = float(self._bank.AUX[self._bank.reported, L.A_T_STATE])
         if not (math.isfinite(t) and t - t_state > self._config.max_time_jump_s):
             self._jump_candidate = math.nan
             return False
@@ -428,33 +425,26 @@ class TrackFilter:
         self._count_all(L.C_TIME_JUMP, 1)
         return True
 
-    def _score(self, nis_slot: int) -> None:
-        """Hypothesis score: robust log-likelihood -NIS/2 (capped) of GNSS fixes, odometer and gyro
-        samples that at least one hypothesis accepted (a measurement every hypothesis rejects is a sensor
-        fault, not evidence for one of them); then prune."""
-        cap = self._config.loglik_nis_cap
-        for h in self._hyps:
-            h.aux[L.A_LOGLIK] -= 0.5 * min(float(h.aux[nis_slot]), cap)
-        self._prune()
-
     def _invalid(self, kind: str, m, counter: int) -> Update:
         self._count_all(counter, 1)
         t = m.t_s if isinstance(getattr(m, "t_s", None), float | int) else math.nan
         return Update(kind, float(t), Outcome.INVALID)
 
     def _count_all(self, counter: int, n: int) -> None:
-        for h in self._hyps:
-            h.cnt[counter] += n
+        b = self._bank
+        for h in b.slots():
+            b.CNT[h, counter] += n
 
     # ------------------------------------------------------------------ lines and junctions
     def preload_lines(self) -> int:
         """Load every line of the database now (the daemon calls this before READY, so memory stays
         flat and no junction pays a load while the train runs); returns the number of lines."""
         for info in self._track.lines():
-            self._line_arrays(info.line_id)
+            self.line_arrays(info.line_id)
         return len(self._lines)
 
-    def _line_arrays(self, line_id: int | None) -> TrackArrays:
+    def line_arrays(self, line_id: int | None) -> TrackArrays:
+        """The kernels' arrays of line ``line_id`` (the database's default line for None), loaded once."""
         key = self._track.default_line_id if line_id is None else int(line_id)
         arr = self._lines.get(key)
         if arr is None:
@@ -489,20 +479,10 @@ class TrackFilter:
             self._junctions = jmap
         return self._junctions
 
-    def _spawn_reversals(self) -> None:
-        """At standstill the train may change its sense of travel: keep the mirrored hypothesis too."""
-        new = []
-        for h in self._hyps:
-            if h.aux[L.A_STILL] == 0.0:
-                continue
-            if any(g.line.line_id == h.line.line_id and g.direction != h.direction
-                   and abs(g.x[L.S] - h.x[L.S]) < 1.0 for g in self._hyps + new):
-                continue
-            new.append(h.mirrored(self._cfg))
-        if new:
-            self._hyps.extend(new)
-            self._empty_gyro_windows()
-            self._prune()
+    def _junction_s(self, line_id: int) -> list[tuple[int, float]]:
+        """(junction key, s on the line) of every junction on ``line_id`` (the bank's junction windows)."""
+        entry = self._junction_map().get(line_id)
+        return [] if entry is None else [(key, s) for key, s, _, _ in entry[1]]
 
     def _spawn_branches(self) -> None:
         """Add a hypothesis on every line that branches off within the look-ahead window."""
@@ -510,94 +490,53 @@ class TrackFilter:
         if not jmap:
             return
         window = self._config.junction_window_m
-        new: list[_Hypothesis] = []
-        for h in self._hyps:
-            entry = jmap.get(h.line.line_id)
+        b = self._bank
+        new: list[int] = []
+        for h in b.slots():
+            line = b.line(h)
+            entry = jmap.get(line.line_id)
             if entry is None:
                 continue
             s_list, items = entry
-            s = float(h.x[L.S])
+            s = float(b.X[h, L.S])
             lo, hi = bisect.bisect_left(s_list, s - window), bisect.bisect_right(s_list, s + window)
             for key, s_here, other, s_other in items[lo:hi]:
-                if key in h.spawned:
+                spawned = b.spawned(h)
+                if key in spawned:
                     continue
-                h.spawned = h.spawned | {key}
+                spawned = spawned | {key}
+                b.set_spawned(h, spawned)
                 try:
-                    other_line = self._line_arrays(other)
+                    other_line = self.line_arrays(other)
                 except self._track_errors:
                     continue
                 # direction of the other line relative to this one at the junction
-                _, _, de_a, dn_a = K.geom_at(h.line.s_m, h.line.east_m, h.line.north_m, s_here)
+                _, _, de_a, dn_a = K.geom_at(line.s_m, line.east_m, line.north_m, s_here)
                 _, _, de_b, dn_b = K.geom_at(other_line.s_m, other_line.east_m, other_line.north_m, s_other)
+                g = b.new_slot(new)
                 if de_a * de_b + dn_a * dn_b >= 0.0:
-                    new.append(h.copy_to(other_line, s_other + (s - s_here), h.spawned, self._cfg))
+                    self._copy_to(h, g, other_line, s_other + (s - s_here), spawned, flip=False)
                 else:  # arc length of the other line runs the other way at the junction
-                    new.append(h.copy_to(other_line, s_other - (s - s_here), h.spawned, self._cfg, flip=True))
+                    self._copy_to(h, g, other_line, s_other - (s - s_here), spawned, flip=True)
+                new.append(g)
         if new:
-            self._hyps.extend(new)
-            self._empty_gyro_windows()
-            self._prune()
+            b.set_live(b.slots() + new, int(b.ns[1]))
+            b.empty_gyro_windows()
+            b.prune(self._cfg)
+        b.compact()
 
-    def _empty_gyro_windows(self) -> None:
-        """After new hypotheses: every gyro window starts empty, so that all close at the same sample (the
-        likelihood compares their NIS there) and none of a copy's residuals, taken on its parent's line
-        or sense of travel, is applied to it."""
-        for g in self._hyps:
-            g.aux[L.A_GY_N] = 0.0
-
-    def _same_track(self, g: _Hypothesis, h: _Hypothesis) -> bool:
-        """True when h duplicates g: the same line, sense of travel and place (within 1 m); or another
-        line that runs on g's track: the same place and way of travel in the plane now and 2 x the
-        junction window ahead (several routes of a network share one track: hypotheses on them cannot
-        be told apart until the lines part, where that junction spawns them again). A branch just
-        spawned is not a duplicate: 2 x the window ahead reaches at least one window past its junction,
-        where the lines have parted."""
-        if g.line.line_id == h.line.line_id:
-            return g.direction == h.direction and abs(g.x[L.S] - h.x[L.S]) < 1.0
-        ahead = 2.0 * self._config.junction_window_m
-        pts = []
-        for q in (g, h):
-            s0 = float(q.x[L.S])
-            s1 = s0 + q.direction * ahead
-            ln = q.line
-            if not (ln.s_m[0] <= s0 <= ln.s_m[-1] and ln.s_m[0] <= s1 <= ln.s_m[-1]):
-                return False
-            e0, n0, de, dn = K.geom_at(ln.s_m, ln.east_m, ln.north_m, s0)
-            e1, n1, _, _ = K.geom_at(ln.s_m, ln.east_m, ln.north_m, s1)
-            pts.append((e0, n0, e1, n1, q.direction * de, q.direction * dn))
-        (ga, gb, gc, gd, gu, gv), (ha, hb, hc, hd, hu, hv) = pts
-        return (math.hypot(ga - ha, gb - hb) < 1.0 and math.hypot(gc - hc, gd - hd) < 1.0
-                and gu * hu + gv * hv > 0.0)
-
-    def _prune(self) -> None:
-        """Drop hypotheses whose GNSS log-likelihood trails the best by more than prune_log_ratio,
-        duplicates (``_same_track``) and the excess over max_hypotheses."""
-        reported = self._hyps[self._reported]
-        best = max(float(h.aux[L.A_LOGLIK]) for h in self._hyps)
-        keep: list[_Hypothesis] = []
-        order = sorted(self._hyps, key=lambda h: (h is not reported, -float(h.aux[L.A_LOGLIK])))
-        for h in order:
-            if float(h.aux[L.A_LOGLIK]) < best - self._config.prune_log_ratio:
-                continue
-            margin = self._config.junction_window_m
-            if h.x[L.S] > h.line.length_m + margin or h.x[L.S] < -margin:
-                if len(order) > 1:
-                    continue  # ran off the end of its line while others remain
-            if any(self._same_track(g, h) for g in keep):
-                continue
-            keep.append(h)
-        if not keep:
-            keep = [reported]
-        keep = keep[: self._config.max_hypotheses]
-        # reported hypothesis: keep the current one unless another leads by switch_log_ratio
-        if reported in keep:
-            lead = max(keep, key=lambda h: float(h.aux[L.A_LOGLIK]))
-            margin = self._config.switch_log_ratio
-            ahead = float(lead.aux[L.A_LOGLIK]) > float(reported.aux[L.A_LOGLIK]) + margin
-            chosen = lead if ahead else reported
-        else:
-            chosen = max(keep, key=lambda h: float(h.aux[L.A_LOGLIK]))
-        if len(keep) == 1:
-            keep[0].aux[L.A_LOGLIK] = 0.0  # alone: restart the score so it never drifts
-        self._hyps = keep
-        self._reported = keep.index(chosen)
+    def _copy_to(self, h: int, g: int, line: TrackArrays, s_m: float, keys: frozenset, flip: bool) -> None:
+        """Slot g = a copy of slot h on ``line`` at ``s_m`` (h's P synced first); ``flip`` when arc length
+        runs the other way there (s and v change sign, and so do their covariance rows/columns)."""
+        b = self._bank
+        K.sync_block(b.X[h], b.PP[h], b.AUX[h], self._cfg, b.CNT[h])
+        b.copy_slot(g, h)  # snapshots are on the other line: not reusable
+        b.place(g, line, keys)
+        b.X[g, L.S] = s_m
+        if flip:
+            b.X[g, L.V] = -b.X[g, L.V]
+            b.AUX[g, L.A_DIR] = -b.AUX[g, L.A_DIR]
+            P = b.PP[g]
+            for i in (L.S, L.V):
+                P[i, :] = -P[i, :]
+                P[:, i] = -P[:, i]

@@ -276,7 +276,14 @@ K_Q_REG = 67  #: map registration: arc-length random walk per metre travelled [m
 K_AD_WINDOW = 68  #: memory of the adaptive GNSS error statistics (0: the preset's model, fixed) [s]
 K_AD_PRIOR = 69  #: weight of the preset's model in those statistics, as seconds of data [s]
 K_CUSUM_DT = 70  #: GNSS fixes closer than this count as a fraction dt / this of one in the CUSUM [s]
-NCFG = 71
+# the hypothesis bank's rules (sfa.bank): scoring, pruning, reversals, junction windows, time jumps
+K_JUNCTION_WINDOW = 71  #: distance before a junction at which branch hypotheses are spawned [m]
+K_PRUNE_LOG_RATIO = 72  #: log-likelihood lead that prunes a hypothesis [-]
+K_SWITCH_LOG_RATIO = 73  #: lead another hypothesis needs to become the reported one [-]
+K_MAX_HYPOTHESES = 74  #: most line / direction hypotheses kept at once [-]
+K_REVERSAL = 75  #: 1: at standstill also keep the reversed sense of travel
+K_MAX_TIME_JUMP = 76  #: a measurement further ahead of the state needs confirming [s]
+NCFG = 77
 
 # ---------------------------------------------------------------- measurement kinds and result codes
 M_IMU = 1

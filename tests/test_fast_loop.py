@@ -1,4 +1,4 @@
-"""tools.fast_loop's disk cache: keyed on the sources its loops are compiled from (sfa/*.py and itself)."""
+"""tools.fast_loop's disk cache: keyed on the sources its loop is compiled from (sfa/*.py and itself)."""
 
 from __future__ import annotations
 
@@ -27,6 +27,6 @@ def test_the_loops_are_cached_under_the_current_key():
     sources = [*sorted(Path(sfa.__file__).parent.glob("*.py")), Path(fl.__file__)]
     assert fl.CACHE_DIR is not None  # the worktree's __pycache__ (or NUMBA_CACHE_DIR) is writable
     assert Path(fl.CACHE_DIR).name == f"fast_loop-{fl.source_key(sources)}"
-    for func in (fl.run_segment, fl.interp_many):
+    for func in (fl.run_replay_loop,):
         assert func._cache._cache_path.startswith(fl.CACHE_DIR), func
     assert numba.config.CACHE_DIR != fl.CACHE_DIR  # put back for every other module

@@ -229,11 +229,11 @@ def test_reading_the_estimate_never_changes_the_arithmetic(db):
         if not read.initialised:
             continue
         est = read.estimate()
-        h = read._hyps[read._reported]
+        _, P, aux, _ = read.hypotheses()[0]  # the reported one (copies)
         x_now, p_now = read.state()  # a synced copy
-        if h.aux[L.A_PB_H] > 0.0:
+        if aux[L.A_PB_H] > 0.0:
             pending_seen += 1
-            pss, pvv = K.pending_var_s(h.P, h.aux), K.pending_var_v(h.P, h.aux)
+            pss, pvv = K.pending_var_s(P, aux), K.pending_var_v(P, aux)
             assert pss == pytest.approx(p_now[0, 0], rel=1e-12)
             assert pvv == pytest.approx(p_now[1, 1], rel=1e-12)
         assert est.sigma_s_m == pytest.approx(math.sqrt(p_now[0, 0]), rel=1e-12)
@@ -249,27 +249,37 @@ def test_reading_the_estimate_never_changes_the_arithmetic(db):
 
 def test_hypotheses_on_routes_sharing_one_track_are_duplicates():
     """On the Jena network several routes share a track with the same arc length: hypotheses on them
-    cannot be told apart (their likelihoods stay equal), so _prune keeps one; a branch that parts
-    within two junction windows is not a duplicate (the geometry below is the bundled OSM data)."""
+    cannot be told apart (their likelihoods stay equal), so the prune (sfa.bank.same_track) keeps one;
+    a branch that parts within two junction windows is not a duplicate (the geometry below is the
+    bundled OSM data)."""
     from interface_modules.scenario import load_scenario
     from interface_modules.tracks import database_path
     from sfa import layout as L
-    from sfa.filter import _Hypothesis
+    from sfa.bank import HypothesisBank
 
     with TrackDatabase.open(database_path(load_scenario("tram-urban"))) as jena:
         f = TrackFilter(jena, filter_config_for())
+        bank = HypothesisBank(f.config.max_hypotheses)
+        cfg = f.config.to_array()
+        used: list[int] = []
 
         def hyp(line_id, s_m, direction=1.0):
-            h = _Hypothesis(f._line_arrays(line_id))
-            h.x[L.S] = s_m
-            h.aux[L.A_DIR] = direction
+            h = bank.new_slot(used)
+            used.append(h)
+            bank.place(h, f.line_arrays(line_id), frozenset())
+            bank.X[h, L.S] = s_m
+            bank.AUX[h, L.A_DIR] = direction
             return h
 
+        def same(g, h):
+            return bank.same_track(g, h, cfg)
+
         shared = (hyp(2, 2418.0), hyp(10, 2418.0), hyp(17, 2418.0))  # one track, measured 2026-11-22
-        assert f._same_track(shared[0], shared[1]) and f._same_track(shared[0], shared[2])
-        assert not f._same_track(shared[0], hyp(10, 2418.0, -1.0))  # the other way along it
-        assert not f._same_track(hyp(2, 2351.4), hyp(1, 2350.8))  # line 1 parts from line 2 ahead
-        assert not f._same_track(shared[0], hyp(2, 2420.0))  # same line: 2 m apart
+        assert same(shared[0], shared[1]) and same(shared[0], shared[2])
+        assert not same(shared[0], hyp(10, 2418.0, -1.0))  # the other way along it
+        assert not same(hyp(2, 2351.4), hyp(1, 2350.8))  # line 1 parts from line 2 ahead
+        assert not same(shared[0], hyp(2, 2420.0))  # same line: 2 m apart
+        assert same(shared[0], hyp(2, 2418.5))  # same line, within 1 m
 
 
 def _roll_cos_by_angles(f_lat, f_up, fy, fz):

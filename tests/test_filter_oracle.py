@@ -250,7 +250,7 @@ def test_filter_matches_filterpy_oracle_to_1e9(db, map_terms):
                    GPS_PRESETS["standalone"], seed=21, profile=profile)
     f = TrackFilter(db, cfg)
     line = db.line(1)
-    arrays = f._line_arrays(1)  # the grade samples the filter uses (the database's smoothed grade)
+    arrays = f.line_arrays(1)  # the grade samples the filter uses (the database's smoothed grade)
     oracle = Oracle(line, cfg, arrays.s_m, arrays.grade, arrays.curvature_inv_m)
     compared = 0
     for m in run.measurements:

@@ -425,8 +425,8 @@ def test_covariance_stays_exactly_symmetric_through_faults(db, cfg):
     worst = 0.0
     for m in run.measurements[:30000]:
         f.process(m)
-        for h in f._hyps:
-            worst = max(worst, float(np.max(np.abs(h.P - h.P.T))))
+        for _, P, _, _ in f.hypotheses():
+            worst = max(worst, float(np.max(np.abs(P - P.T))))
             checked += 1
     c = f.counters()
     assert c["slip_detections"] >= 1 and c["gnss_step_detections"] + c["gps_gated"] >= 1

@@ -480,7 +480,7 @@ def _junction_row(tmp: Path, quick: bool, repeats: int, log) -> Row:
             compared=f"exact replay {n_dg / t_exact:,.0f}/s ({t_exact / t_fast:.0f}x); new estimates "
             f"identical to the exact replay: {equal}; {info.compiled / n_dg:.1%} of the datagrams compiled, "
             f"{info.python_steps:,} measurements through TrackFilter.process "
-            f"(junction hand-overs: {fr['handed_back_at_junctions']})",
+            f"(junction windows, branches spawned by TrackFilter.run: {fr['handed_back_at_junctions']})",
             repeats=repeats,
             samples=tuple(n_dg / t for t in t_all),
         )

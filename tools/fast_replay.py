@@ -23,11 +23,11 @@ clock at its arrival, the merge releasing each measurement at once (``merge.hold
    start with measurements before the first STROBE goes through the exact pipeline up to that
    STROBE, which empties the listener's undated queue),
 4. GNSS fixes go to the track's frame; rejected measurements are dropped from the packed rows,
-5. the filter runs from the exact pipeline's filter object: compiled (:func:`tools.fast_loop.run_segment`:
-   the kernels plus TrackFilter's scoring, pruning and standstill reversal hypotheses) while every
-   hypothesis is on one line, and ``TrackFilter.process`` itself for the measurements where the filter
-   branches at a junction, keeps hypotheses on several lines, re-initialises (GROUND TRUTH) or applies
-   its time-jump rule; the state goes back and forth between the two through the filter object,
+5. the filter runs from the exact pipeline's filter object through its public calls: ``TrackFilter.run``
+   (its own compiled loop, ``sfa.bank.run_segment``, with the listener's output rule; junction branches
+   spawned by the filter itself) and ``TrackFilter.process`` for the measurements the loop stops before
+   (a GROUND TRUTH, or one the time-jump rule looks at), ``TrackFilter.emit`` applying the output rule
+   after them,
 6. the result columns (estimates as sent, per-measurement outcomes and NIS) are written by the filter
    loop itself, straight into the arrays the result hands out (no intermediate per-measurement rows:
    about 50 MB less memory to fault in on a 90 min capture); lat/lon on the line and the counters
@@ -55,21 +55,8 @@ import numpy as np
 from numba import njit
 
 from listener.pipeline import to_measurement
-from sfa import layout as L
+from sfa.bank import NOST, O_BITS, O_LAST, O_LINE_HI, O_LINE_LO, O_ROW, O_STALE, RunOutput
 from sfa.layout import FilterStatus, Outcome
-from tools.fast_loop import (
-    NOST,
-    O_BITS,
-    O_LAST,
-    O_LINE_HI,
-    O_LINE_LO,
-    O_ROW,
-    O_STALE,
-    STOP_AFTER,
-    STOP_UNDONE,
-    put_row,
-    run_segment,
-)
 
 #: datagrams replayed through the exact pipeline at most before the hand-over to compiled code
 MAX_EXACT_PREFIX = 200_000
@@ -159,12 +146,6 @@ def resilience_reason(result, track, options) -> str:
 
 
 _SLACK_S = 0.01  #: vital_reason errs this much towards the exact replay (the timer's margin is 1 ms) [s]
-
-
-def _bits_of(reasons) -> int:
-    from sfa.layout import REASON_NAMES
-
-    return sum(bit for bit, name in REASON_NAMES.items() if name in reasons)
 
 
 def vital_reason(got, result, options, bits=None) -> str:
@@ -482,7 +463,7 @@ def _latlon(ts, lat, lon, s, line, lid, every, out_lat, out_lon):
     """lat/lon at arc length ``s`` on the line with vertices at ``ts`` (rows of ``line`` == lid, or every
     row): for s within [ts[0], ts[-1]] ``sfa.kernels.interp_at`` for both (the same segment as its binary
     search, found from the previous row's, and the same expression), NaN otherwise (as
-    tools.fast_loop.interp_many)."""
+    ``sfa.filter.TrackFilter``'s lat/lon)."""
     n = ts.shape[0]
     first = ts[0]
     end = ts[n - 1]
@@ -684,17 +665,18 @@ def _replay_ingested(got, track, options, ingest_s: float = 0.0):
         math.nan if last is None else float(last.arc_length_m),
         cols,
         m_now,  # an estimate is sent when its measurement is released (its arrival, or a hold's end)
+        fresh_min,
         options.config.link.start_seq + pipe.link.outputs,
     )
     i = 0
     while i < nm:
-        j = state.compiled(i, kind, t_s, vals, fresh_min)
+        j = state.compiled(i, kind, t_s, vals)
         if j >= nm:
             break
         i = j
         msg = decode_input(got.datagram(int(mrows[i]))[2])
         upd = filt.process(to_measurement(msg, float(t_s[i])))  # its epoch, or as the clock dated it
-        state.python_row(i, upd, fresh_min[i])
+        state.python_row(i, upd)
         i += 1
     lap("filter")
 
@@ -739,7 +721,7 @@ def _replay_ingested(got, track, options, ingest_s: float = 0.0):
         lines_out = est["line_id"][he:]
         lo_line, hi_line = int(ost[O_LINE_LO]), int(ost[O_LINE_HI])
         lines = [lo_line] if lo_line == hi_line else np.unique(lines_out).tolist()
-        arrays = {lid: filt._line_arrays(int(lid)) for lid in lines if lid >= 0}
+        arrays = {lid: filt.line_arrays(int(lid)) for lid in lines if lid >= 0}
         if len(lines) > 1 or not arrays or arrays[lines[0]].lat_deg is None:
             est["lat"][he:] = math.nan  # rows no line interpolates (one line: _latlon writes every row)
             est["lon"][he:] = math.nan
@@ -833,7 +815,6 @@ def _replay_ingested(got, track, options, ingest_s: float = 0.0):
         "compiled_datagrams": compiled,
         "python_filter_steps": state.python_steps,
         "handed_back_at_junctions": state.branched,
-        "undone_for_scores": state.undone,
         "compiled_fraction": compiled / n,
         "retransmissions_added": int(retx.shape[0]),
         # (the pipeline sections the compiled path does not advance: left out, not stale)
@@ -989,191 +970,39 @@ def _info(used: bool, reason: str, prefix: int, compiled: int = 0, python: int =
 
 
 class _FilterRun:
-    """The filter over the packed measurements: compiled segments (tools.fast_loop.run_segment) and the
-    rows TrackFilter.process handles, with the listener's output rule over both."""
+    """The filter over the packed measurements: ``TrackFilter.run`` (its compiled loop, the output rule
+    included) and the rows ``TrackFilter.process`` handles, with the same output rule
+    (``TrackFilter.emit``) after them."""
 
-    def __init__(self, filt, last_epoch: float, last_s: float, cols, m_time, seq0: int) -> None:
-        """``cols``: the result columns (u_out, u_nis per measurement; e_f (7, .), e_i (3, .) for
-        the estimates sent, from row ``cols.he`` on, as tools.fast_loop.run_segment writes them)."""
-        cfg = filt.config
+    def __init__(self, filt, last_epoch: float, last_s: float, cols, m_time, fresh_min, seq0: int) -> None:
+        """``cols``: the result columns (u_out, u_nis per measurement; e_f (7, .), e_i (4, .) for
+        the estimates sent, from row ``cols.he`` on, as ``sfa.bank.run_segment`` writes them)."""
         self.filt = filt
-        self.cfg = cfg.to_array()
-        self.z = float(self.cfg[L.K_Z_INTERVAL])
-        self.cap = 2 * int(cfg.max_hypotheses) + 2  # a reversal may double the hypotheses before pruning
         self.cols = cols
-        self.m_time = m_time
-        self.seq0 = seq0 - cols.he  # run_segment numbers rows from the start of the columns
-        self.ost = np.zeros(NOST, dtype=np.int64)
-        self.ost[O_ROW] = cols.he
-        self.ost[O_LAST] = -1
-        self.last = np.array([last_epoch, last_s])
+        ost = np.zeros(NOST, dtype=np.int64)
+        ost[O_ROW] = cols.he
+        ost[O_LAST] = -1
+        # (run_segment numbers the rows from the start of the columns)
+        self.out = RunOutput(cols.u_out, cols.u_nis, cols.e_f, cols.e_i, fresh_min, m_time,
+                             np.array([last_epoch, last_s]), ost, seq0 - cols.he)
+        self.ost = ost
         self.python_steps = 0
-        self.undone = 0  #: measurements handed to TrackFilter after being undone (scores not finite)
-        self.branched = 0  #: measurements after which TrackFilter._spawn_branches ran (junction windows)
+        self.branched = 0  #: measurements after which TrackFilter spawned branches (junction windows)
         self.python_est: dict[int, object] = {}
-        self._junc: dict = {}
-        shape = (self.cap,)
-        self.X = np.zeros((*shape, L.NX))
-        self.P = np.zeros((*shape, L.NX, L.NX))
-        self.A = np.zeros((*shape, L.NAUX))
-        self.C = np.zeros((*shape, L.NCNT), dtype=np.int64)
-        self.M = np.zeros((*shape, L.NMEM))
-        self.snap = (
-            np.zeros_like(self.X),
-            np.zeros_like(self.P),
-            np.zeros_like(self.A),
-            np.zeros_like(self.C),
-            np.zeros_like(self.M),
-        )
-        self.order = np.zeros(self.cap, dtype=np.int64)
-        self.ns = np.zeros(2, dtype=np.int64)
-        self.work_i = np.zeros((2, self.cap), dtype=np.int64)  # run_segment's scratch (it allocates nothing)
-        self.work_f = np.zeros(self.cap)
 
-    def _entry(self):
-        """(line, spawned) when the compiled loop can take the filter as it is, else None."""
-        f = self.filt
-        hyps = f._hyps
-        if not hyps or hyps[0].aux[L.A_INIT] == 0.0 or len(hyps) > self.cap // 2:
-            return None
-        if not math.isnan(f._jump_candidate):
-            return None
-        rep = hyps[f._reported]
-        line, spawned = rep.line, rep.spawned
-        for h in hyps:
-            if h.line.line_id != line.line_id or h.spawned != spawned or not math.isfinite(h.aux[L.A_LOGLIK]):
-                return None
-        return line, spawned
-
-    def _junctions(self, line, spawned) -> np.ndarray:
-        key = (line.line_id, spawned)
-        arr = self._junc.get(key)
-        if arr is None:
-            entry = self.filt._junction_map().get(line.line_id)
-            items = [] if entry is None else entry[1]
-            arr = np.array([s for k, s, _, _ in items if k not in spawned], dtype=np.float64)
-            self._junc[key] = arr
-        return arr
-
-    def compiled(self, i: int, kind, t_s, vals, fresh_min) -> int:
+    def compiled(self, i: int, kind, t_s, vals) -> int:
         """Run compiled from row i as far as it goes; returns the first row not processed."""
-        from sfa.filter import _Hypothesis
-
-        entry = self._entry()
-        if entry is None:
-            return i
-        line, spawned = entry
-        f = self.filt
-        cfg = f.config
-        hyps = f._hyps
-        for q, h in enumerate(hyps):
-            self.X[q] = h.x
-            self.P[q] = h.P
-            self.A[q] = h.aux
-            self.C[q] = h.cnt
-            self.M[q] = h.mem
-            self.order[q] = q
-        self.ns[0] = len(hyps)
-        self.ns[1] = f._reported
-        sx, sp, sa, sc, sm = self.snap
-        j, why = run_segment(
-            kind,
-            t_s,
-            vals,
-            i,
-            self.X,
-            self.P,
-            self.A,
-            self.C,
-            self.M,
-            sx,
-            sp,
-            sa,
-            sc,
-            sm,
-            self.order,
-            self.ns,
-            self.cfg,
-            line.s_m,
-            line.east_m,
-            line.north_m,
-            line.grade,
-            line.curvature_inv_m,
-            float(line.length_m),
-            self._junctions(line, spawned),
-            float(cfg.junction_window_m),
-            float(cfg.max_time_jump_s),
-            float(cfg.loglik_nis_cap),
-            float(cfg.prune_log_ratio),
-            float(cfg.switch_log_ratio),
-            int(cfg.max_hypotheses),
-            bool(cfg.reversal_hypotheses),
-            fresh_min,
-            self.last,
-            self.cols.u_out,
-            self.cols.u_nis,
-            self.cols.e_f,
-            self.cols.e_i,
-            self.ost,
-            self.m_time,
-            int(line.line_id),
-            self.seq0,
-            self.z,
-            self.work_i,
-            self.work_f,
-        )
-        j = int(j)
-        if why == STOP_UNDONE:
-            self.undone += 1
-        if j > i or why == STOP_AFTER:
-            new = []
-            for q in range(int(self.ns[0])):
-                c = int(self.order[q])
-                new.append(
-                    _Hypothesis(
-                        line,
-                        self.X[c].copy(),
-                        self.P[c].copy(),
-                        self.A[c].copy(),
-                        self.C[c].copy(),
-                        spawned,
-                        self.M[c].copy(),
-                    )
-                )
-            f._hyps = new
-            f._reported = int(self.ns[1])
-        if why == STOP_AFTER:  # the last statement of TrackFilter.process, then the row's output
-            self.branched += 1
-            f._spawn_branches()
-            self.output_row(j, fresh_min[j])
-            j += 1
+        j, branched = self.filt.run(kind, t_s, vals, i, self.out)
+        self.branched += branched
         return j
 
-    def python_row(self, i: int, upd, fresh_min: float) -> None:
+    def python_row(self, i: int, upd) -> None:
         """Row i went through TrackFilter.process: record it and apply the output rule."""
         self.python_steps += 1
         self.cols.u_nis[i] = math.nan if upd.nis is None else float(upd.nis)
         self.cols.u_out[i] = int(upd.outcome)
-        self.output_row(i, fresh_min)
-
-    def output_row(self, i: int, fresh_min: float) -> None:
-        """The filter's estimate after row i, and the listener's output rule on it."""
-        est = self.filt.estimate()
-        epoch, s = est.epoch_s, est.arc_length_m
-        if math.isfinite(epoch) and math.isfinite(s):
-            last = self.last
-            if epoch < fresh_min:
-                self.ost[O_STALE] += 1
-            elif epoch >= last[0] and not (epoch == last[0] and s == last[1]):
-                last[0] = epoch
-                last[1] = s
-                self.python_est[i] = est
-                line_id = -1 if est.line_id is None else est.line_id
-                put_row(
-                    self.cols.e_f, self.cols.e_i, self.ost, i, epoch, s, float(self.m_time[i]),
-                    est.speed_mps, est.sigma_s_m, int(est.status), _bits_of(est.reasons), line_id, self.seq0,
-                    self.z,
-                )  # fmt: skip
+        if self.filt.emit(i, self.out):
+            self.python_est[i] = self.filt.estimate()
 
     def last_estimate(self, lat: float, lon: float):
         """The Estimate the listener holds after its last output (for the metrics snapshot), or None."""

@@ -1,0 +1,140 @@
+"""sfa.bank: the hypothesis bank's compiled loop is TrackFilter's, over one measurement or a run of them."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from interface_modules.presets import GPS_PRESETS, IMU_PRESETS, ODOMETER_PRESETS
+from sfa import batch
+from sfa import layout as L
+from sfa.bank import I_JHI, I_JLO, NEF, NEI, NOST, O_LAST, O_ROW, HypothesisBank, RunOutput, score
+from sfa.filter import TrackFilter
+from sfa.presets import filter_config_for
+from sfa.synthetic import build_track_db, generate
+from sfa.track_arrays import TrackArrays
+from track_db import TrackDatabase
+
+IMU = IMU_PRESETS["mems-train"]
+ODO = ODOMETER_PRESETS["wheel-odometer"]
+GPS = GPS_PRESETS["standalone"]
+
+
+@pytest.fixture(scope="module")
+def db(tmp_path_factory):
+    path = build_track_db(tmp_path_factory.mktemp("track") / "bank.db")
+    with TrackDatabase.open(path) as database:
+        yield database
+
+
+def _output_rule(estimates):
+    """(epoch, s) of the estimates the listener sends: finite, not older than the last sent, not the
+    same epoch and arc length (no clock here: nothing is stale)."""
+    sent = []
+    last = (-math.inf, math.nan)
+    for e in estimates:
+        if not (math.isfinite(e.epoch_s) and math.isfinite(e.arc_length_m)):
+            continue
+        if e.epoch_s >= last[0] and not (e.epoch_s == last[0] and e.arc_length_m == last[1]):
+            last = (e.epoch_s, e.arc_length_m)
+            sent.append(last)
+    return np.array(sent)
+
+
+def test_run_over_packed_measurements_equals_process_one_by_one(db, monkeypatch):
+    """TrackFilter.run (the replay's path) and TrackFilter.process per measurement: the same outcomes,
+    NIS, sent estimates and final hypotheses, bit for bit, through the junction where line 2 leaves
+    line 1 (branches spawned, hypotheses on two lines, standstill reversals)."""
+    cfg = filter_config_for()
+    run = generate(db, 1, 240.0, IMU, ODO, GPS, seed=11)
+    meas = run.measurements
+    one = TrackFilter(db, cfg)
+    upd = [one.process(m) for m in [meas[0]]]
+    ests = [one.estimate()]
+    most = 1
+    for m in meas[1:]:
+        upd.append(one.process(m))
+        ests.append(one.estimate())
+        most = max(most, len({h[3] for h in one.hypotheses()}))
+    assert most == 2  # the run did keep hypotheses on both lines at some time
+
+    packed = batch.pack(meas, db)
+    n = len(meas)
+    out = RunOutput(np.zeros(n, dtype=np.int64), np.zeros(n), np.zeros((NEF, n)),
+                    np.zeros((NEI, n), dtype=np.int64), np.full(n, -math.inf), packed.t_s.copy(),
+                    np.array([-math.inf, math.nan]), np.zeros(NOST, dtype=np.int64), 0)
+    out.ost[O_LAST] = -1
+    monkeypatch.setattr(HypothesisBank, "MAX_SPAWN_SETS", 0)  # compact after every spawn: only indices change
+    two = TrackFilter(db, cfg)
+    i = 0
+    handed = branched = 0
+    while i < n:
+        j, b = two.run(packed.kind, packed.t_s, packed.values, i, out)
+        branched += b
+        if j >= n:
+            break
+        u = two.process(meas[j])
+        handed += 1
+        out.u_out[j] = int(u.outcome)
+        out.u_nis[j] = math.nan if u.nis is None else u.nis
+        two.emit(j, out)
+        i = j + 1
+    assert branched >= 1 and handed < 10  # the GROUND TRUTH goes through process(), the rest ran compiled
+    assert out.u_out.tolist() == [int(u.outcome) for u in upd]
+    want_nis = np.array([math.nan if u.nis is None else u.nis for u in upd])
+    np.testing.assert_array_equal(out.u_nis, want_nis)
+    sent = _output_rule(ests)
+    rows = int(out.ost[O_ROW])
+    assert rows == sent.shape[0] > 1000
+    np.testing.assert_array_equal(out.e_f[0, :rows], sent[:, 0])
+    np.testing.assert_array_equal(out.e_f[1, :rows], sent[:, 1])
+    for (xa, pa, aa, la), (xb, pb, ab, lb) in zip(one.hypotheses(), two.hypotheses(), strict=True):
+        assert la == lb
+        np.testing.assert_array_equal(xa, xb)
+        np.testing.assert_array_equal(pa, pb)
+        np.testing.assert_array_equal(aa, ab)
+    assert one.counters() == two.counters()
+
+
+def test_a_nis_that_is_not_a_number_scores_as_the_cap():
+    bank = HypothesisBank(2)
+    bank.set_live([0, 1], 0)
+    bank.AUX[0, L.A_LAST_NIS_ODO] = math.nan
+    bank.AUX[1, L.A_LAST_NIS_ODO] = 3.0
+    bank.AUX[:2, L.A_LOGLIK] = -1.0
+    score(bank.order, 2, bank.AUX, L.A_LAST_NIS_ODO, 50.0)
+    assert bank.AUX[0, L.A_LOGLIK] == -1.0 - 25.0
+    assert bank.AUX[1, L.A_LOGLIK] == -1.0 - 1.5
+
+
+def test_the_bank_grows_when_spawning_needs_room():
+    bank = HypothesisBank(1)
+    cap = bank.cap
+    bank.X[0, L.S] = 42.0
+    bank.set_live([0], 0)
+    taken: list[int] = []
+    for _ in range(cap + 3):
+        taken.append(bank.new_slot(taken))
+    assert len(set(taken)) == cap + 3 and 0 not in taken
+    assert bank.cap > cap and bank.X[0, L.S] == 42.0 and bank.slots() == [0]
+
+
+def test_compact_keeps_only_the_junction_sets_of_live_slots():
+    """A lineage that passes junction after junction interns a new set each time; compact() forgets the
+    sets no live slot has, and a live slot keeps its junctions still to branch at."""
+    bank = HypothesisBank(2)
+    line = TrackArrays(7, 100.0, np.array([0.0, 100.0]), np.array([0.0, 100.0]), np.zeros(2), np.zeros(2),
+                       np.zeros(2))
+    bank.junction_s = lambda line_id: [(k, 10.0 * k) for k in range(8)]
+    bank.place(0, line, frozenset())
+    bank.set_live([0], 0)
+    for k in range(1, 6):
+        bank.set_spawned(0, frozenset(range(k)))  # branched at junctions 0 .. k - 1
+    assert len(bank.spawn_sets) == 6 and bank.JS.size > 3
+    bank.MAX_SPAWN_SETS = 2
+    bank.compact()
+    assert bank.spawn_sets == [frozenset(), frozenset(range(5))] and bank.spawned(0) == frozenset(range(5))
+    lo, hi = int(bank.IDX[I_JLO, 0]), int(bank.IDX[I_JHI, 0])
+    assert bank.JS.tolist() == bank.JS[lo:hi].tolist() == [50.0, 60.0, 70.0]
