@@ -362,9 +362,7 @@ class Pipeline:
             ref = self.clock.to_sensor_time(item.arrival)
             if ref is not None and epoch > ref + self.cfg.clock.max_future_s:
                 # e.g. a flipped exponent bit: one such epoch would drag the filter far into the future
-                self.counters["rejected"] += 1
-                self.counters["rejected_after_sequencing"] += 1  # also in by_type: it was sequenced
-                self.rejected["epoch_future"] += 1
+                self.count_rejected_after_sequencing("epoch_future")
                 self.give_back_seq(item)
                 self.resilience.warn("epoch_future", item.arrival, epoch=epoch, sensor_now=ref)
                 return
@@ -376,6 +374,14 @@ class Pipeline:
         heapq.heappush(self._heap, (epoch, self._order, item.msg))
         if len(self._heap) > self.cfg.merge.max_pending:
             self.counters["merge_overflow"] += 1  # released early rather than lost
+
+    def count_rejected_after_sequencing(self, reason: str, n: int = 1) -> None:
+        """The books of ``n`` datagrams rejected for ``reason`` after they were sequenced: in
+        ``input.rejected`` and its reason, and in ``rejected_after_sequencing`` (they are in ``by_type``
+        too: received = rejected - rejected_after_sequencing + sum(by_type) + after_stop)."""
+        self.counters["rejected"] += n
+        self.counters["rejected_after_sequencing"] += n
+        self.rejected[reason] += n
 
     def give_back_seq(self, item: _Arrived) -> None:
         """A released datagram was rejected for its content: its SEQ does not count as used, so the

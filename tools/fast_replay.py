@@ -777,8 +777,7 @@ def _replay_ingested(got, track, options, ingest_s: float = 0.0):
             else:  # pragma: no cover - the compiled pass rejected what the codec accepts: a bug
                 raise AssertionError(f"fast decoder rejected a valid datagram at index {r}")
     if n_future:
-        c["rejected"] += n_future
-        pipe.rejected["epoch_future"] += n_future
+        pipe.count_rejected_after_sequencing("epoch_future", n_future)
     head = row_code[:h]
     types = res[R_TYPES : R_TYPES + 16] - np.bincount(head[head >= 0], minlength=16)
     for t in np.flatnonzero(types).tolist():
