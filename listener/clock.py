@@ -140,13 +140,7 @@ class StrobeClock:
         t, o = K.window_of(self._s)
         return list(zip(t.tolist(), o.tolist(), strict=True))
 
-    # white-box names of the model's parts (tests/test_fast_clock.py compares two clocks by them)
-    _samples = property(samples)
-    _slope = property(lambda self: float(self._s[K.C_SLOPE]))
-    _ref_now = property(lambda self: float(self._s[K.C_REF]))
-    _intercept = property(lambda self: float(self._s[K.C_INTERCEPT]))
-    _candidate = property(lambda self: float(self._s[K.C_CAND]) if self._s[K.C_HAS_CAND] != 0.0 else None)
-    _cand_since = property(lambda self: float(self._s[K.C_CAND_SINCE]))
-    _anchor_t = property(lambda self: float(self._s[K.C_ANCHOR_T]))
-    _anchor_o = property(lambda self: float(self._s[K.C_ANCHOR_O]))
-    _anchor_r = property(lambda self: float(self._s[K.C_ANCHOR_R]))
+    def state(self) -> np.ndarray:
+        """A copy of the whole clock state (the array :mod:`listener.clock_core` works on): two clocks
+        that saw the same STROBEs have bit-identical states."""
+        return self._s.copy()

@@ -17,12 +17,6 @@ import numpy as np
 from listener import clock_core
 
 
-def clock_supported() -> bool:
-    """True: the batch calls run the listener's own clock kernels (there is no second implementation
-    whose float sums could differ from it, as the Python clock's did on Python >= 3.12)."""
-    return True
-
-
 def replay_strobes(clock, timestamp: np.ndarray, now: np.ndarray) -> np.ndarray:
     """Advance ``clock`` (a StrobeClock) by the STROBEs, as ``on_strobe`` does, in one compiled loop.
 
@@ -66,4 +60,4 @@ def sensor_now(params: np.ndarray, now: np.ndarray) -> np.ndarray:
     return out
 
 
-__all__ = ["clock_supported", "replay_clock", "replay_strobes", "sensor_now"]
+__all__ = ["replay_clock", "replay_strobes", "sensor_now"]
