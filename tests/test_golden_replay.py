@@ -27,9 +27,9 @@ Re-pinned (outputs only, captures unchanged) since:
   pinned 02f10b76.. (outputs 8478c7d4.. / 65bd3aed..) on unchanged code, the tram captures did not, and
   older shapely, scipy, numpy and numba releases gave the same new capture. Its E1 database is built
   from the GTFS feed into a cache that was keyed on the feed alone, so the likely cause is a database
-  built before a track_db change and reused where the value was pinned. The cache key now includes the builder's sources
-  (interface_modules.tracks.builder_digest); the values are re-pinned from a fresh build (the same at
-  this commit's parent and after it; the three tram captures did not change).
+  built before a track_db change and reused where the value was pinned. The cache key now includes
+  the builder's sources (interface_modules.tracks.builder_digest); the values are re-pinned from a
+  fresh build (the same before and after that change; the three tram captures did not change).
 """
 
 from __future__ import annotations
