@@ -71,6 +71,11 @@ class FilterConfig:
     #: for the white noise; 1: an update per sample) [samples]
     gyro_average_samples: int = 5
     gyro_average_max_s: float = 0.1  #: longest time a gyro window spans; a longer one is applied as it is [s]
+    #: learn how far the database's curvature is from the path's: the gyro windows' innovations estimate
+    #: a scale (>= 1) of the curvature-model variance above, with this memory in metres travelled (an
+    #: EWMA weighted by each window's length); 0 keeps the scale at 1 (the model-matched form).
+    #: sfa.presets.datasheet_config_for sets 200 m: five curvature correlation lengths
+    gyro_curvature_adaptive_m: float = 0.0
     # --- odometer
     odo_scale_rw_per_rts: float = 1.0e-5  #: odometer scale-factor random walk [1/sqrt(s)]
     init_sigma_odo_scale: float = 0.01  #: initial odometer scale-factor sigma [fraction]
@@ -295,6 +300,7 @@ class FilterConfig:
         c[L.K_INIT_SIGMA_MX] = self.init_sigma_gyro_roll_coupling_rad
         c[L.K_GYRO_AVG_N] = self.gyro_average_samples
         c[L.K_GYRO_AVG_MAX_S] = self.gyro_average_max_s
+        c[L.K_GYRO_AD_M] = self.gyro_curvature_adaptive_m
         c[L.K_IMU_STUCK_N] = self.imu_stuck_samples
         c[L.K_SLIP_BA_SIGMA] = self.slip_accel_bias_sigma_mps2
         c[L.K_IMU_FAULT_HOLD] = self.imu_fault_hold_s

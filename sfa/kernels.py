@@ -40,8 +40,12 @@ from sfa.layout import (
     A_GY_HS,
     A_GY_HSG,
     A_GY_HV,
+    A_GY_LAM,
+    A_GY_LAM_DEN,
+    A_GY_LAM_NUM,
     A_GY_N,
     A_GY_RC,
+    A_GY_RC0,
     A_GY_T0,
     A_GY_Y,
     A_GYRO_OK,
@@ -149,6 +153,7 @@ from sfa.layout import (
     K_GPS_MAX_LOGLIK_NIS,
     K_GPS_TIMEOUT,
     K_GRAVITY,
+    K_GYRO_AD_M,
     K_GYRO_AVG_MAX_S,
     K_GYRO_AVG_N,
     K_GYRO_MIN_SPEED,
@@ -240,6 +245,10 @@ O_HELD_OFF = 7
 LOG_2PI = math.log(2.0 * math.pi)
 COS_MAX_ROLL = math.cos(0.35)  #: cos of the largest roll the gyro compensation accepts (0.35 rad)
 BIG = 1e100  #: bound on the factors of an update: products stay far from overflow
+GYRO_LAM_MAX = 1.0e4  #: largest learned curvature-error scale (the gyro then tells nearly nothing)
+#: weight of the prior scale 1, as a share of the information of a memory full of windows whose residual
+#: is all curvature error (gyro_window_update)
+GYRO_LAM_PRIOR = 0.25
 GPS_IEKF_ITERATIONS = 3  #: Gauss-Newton re-linearisations of a GNSS fix in the arc length (step_gps)
 GPS_IEKF_TOL_M = 1e-3  #: they stop once the linearisation point moves less than this [m]
 
@@ -1114,6 +1123,7 @@ def step_imu(x, P, aux, cnt, mem, cfg, ts, tg, tk, t, fx, fy, fz, wx, wy, wz):
             aux[A_GY_HSG] = 0.0
             aux[A_GY_HMX] = 0.0
             aux[A_GY_RC] = 0.0
+            aux[A_GY_RC0] = 0.0
         # h = [c (1 + s_g) v dk/ds, c (1 + s_g) k, .., 1 (b_g), .., c v k (s_g), gx (m_x)], summed
         aux[A_GY_N] += 1.0
         aux[A_GY_Y] += y
@@ -1130,8 +1140,11 @@ def step_imu(x, P, aux, cnt, mem, cfg, ts, tg, tk, t, fx, fy, fz, wx, wy, wz):
         if cfg[K_CURV_CORR_M] > 0.0:
             dw = abs(x[V]) * cfg[K_GYRO_AVG_N] * min(max(dt_imu, 1e-3), cfg[K_GYRO_AVG_MAX_S])
             nc = cfg[K_CURV_CORR_M] / dw if dw > 0.0 else 1.0
+            aux[A_GY_RC0] += rc
             if nc > 1.0:
                 rc *= nc
+        else:
+            aux[A_GY_RC0] += rc
         aux[A_GY_RC] += rc  # (v sigma_k)^2 n_c: does not average out
         if aux[A_GY_N] >= cfg[K_GYRO_AVG_N]:
             gyro_window_update(x, P, aux, cnt, cfg)
@@ -1143,16 +1156,34 @@ def step_imu(x, P, aux, cnt, mem, cfg, ts, tg, tk, t, fx, fy, fz, wx, wy, wz):
 @njit(cache=True, _nrt=False, error_model="numpy")
 def gyro_window_update(x, P, aux, cnt, cfg):
     """One gyro update from the window's n samples: the mean residual against the mean Jacobian,
-    R = sigma_g^2 / n (white sensor noise averages) + mean (v sigma_k)^2 (the curvature-model error does
-    not). Empties the window; sets the gyro NIS and outcome slots."""
+    R = sigma_g^2 / n (white sensor noise averages) + lam mean (v sigma_k)^2 n_c (the curvature-model
+    error does not; lam is the learned scale of it, 1 unless K_GYRO_AD_M > 0). Empties the window; sets
+    the gyro NIS and outcome slots, and learns lam from the innovation."""
     n = aux[A_GY_N]
     aux[A_GY_N] = 0.0  # emptied before the update: its own correction must not shift the window
     sync_block(x, P, aux, cfg, cnt)
-    r = cfg[K_GYRO_SIGMA] ** 2 / n + aux[A_GY_RC] / n
+    lam = aux[A_GY_LAM] if aux[A_GY_LAM] >= 1.0 else 1.0  # learned curvature-error scale (1: none yet)
+    rw = cfg[K_GYRO_SIGMA] ** 2 / n  # white gyro noise of the window mean
+    rc0 = aux[A_GY_RC0] / n  # mean curvature-model variance (v sigma_k)^2
+    r = rw + lam * aux[A_GY_RC] / n  # ... and inflated by n_c for the information it carries
     y = aux[A_GY_Y] / n  # mean residual
     sm, nis = innovation1(P, aux, S, aux[A_GY_HS] / n, V, aux[A_GY_HV] / n, BG, 1.0, SG, aux[A_GY_HSG] / n,
                           MX, aux[A_GY_HMX] / n, r, y)
     aux[A_LAST_NIS_GYRO] = nis
+    if cfg[K_GYRO_AD_M] > 0.0 and rc0 > 0.0:
+        # innovation-based estimate of the scale: the residual's variance is s0 = h P h' + rw + lam rc0
+        # (the n_c inflation counts information, it is not variance), so each window observes
+        # a = y^2 - h P h' - rw = lam rc0 + noise of variance 2 s0^2: the weighted least-squares lam is
+        # sum(rc0 a / s0^2) / sum(rc0^2 / s0^2), each sum an EWMA over K_GYRO_AD_M metres (weight: the
+        # window's length), started from the prior lam = 1 worth GYRO_LAM_PRIOR of that information
+        s0 = (sm - r) + rw + lam * rc0
+        w = min(abs(x[V]) * max(aux[A_T_IMU] - aux[A_GY_T0], 1e-3) / cfg[K_GYRO_AD_M], 1.0)
+        if aux[A_GY_LAM_DEN] == 0.0:
+            aux[A_GY_LAM_NUM] = GYRO_LAM_PRIOR
+            aux[A_GY_LAM_DEN] = GYRO_LAM_PRIOR
+        aux[A_GY_LAM_NUM] += w * (rc0 * (y * y - (sm - r) - rw) / (s0 * s0) - aux[A_GY_LAM_NUM])
+        aux[A_GY_LAM_DEN] += w * (rc0 * rc0 / (s0 * s0) - aux[A_GY_LAM_DEN])
+        aux[A_GY_LAM] = min(max(aux[A_GY_LAM_NUM] / aux[A_GY_LAM_DEN], 1.0), GYRO_LAM_MAX)
     if nis <= cfg[K_GATE_GYRO]:
         if apply_update1(x, P, aux, sm, y, cfg, cnt):
             cnt[C_GYRO_OK] += 1

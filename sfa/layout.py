@@ -137,7 +137,18 @@ AD_HIST = 45  #: history entries (covers AD_HIST x AD_HIST_SPACING_S seconds, be
 AD_HIST_SPACING_S = 1.0  #: spacing of the history entries [s]
 #: Scratch for the updates (no meaning between calls): P H' (two columns of NX) and the gain K (two
 #: columns of NX). Kept in aux so the compiled updates allocate nothing per measurement.
-A_WK_PHT = A_AD_HIST + AD_ENTRY * AD_HIST
+#: Scale of the curvature-model variance (>= 1), learned from the gyro innovations when K_GYRO_AD_M > 0
+#: (docs/filter.md, "Curvature error"): like the GNSS model, one value for every hypothesis, the
+#: reported one's (it lies inside gnss_noise.share's range, and the bank copies it to the others before
+#: each IMU sample), so that a wrong hypothesis cannot widen its own model until it fits
+A_GY_LAM = A_AD_HIST + AD_ENTRY * AD_HIST
+#: its estimate, a ratio of two averages over the windows (same weights): the residual variance the
+#: curvature error must explain, y^2 - h P h' - rw, over the modelled one, rc0 [rad^2/s^2]; so a window
+#: whose modelled curvature error is small next to the gyro's own noise barely moves it
+A_GY_LAM_NUM = A_GY_LAM + 1
+A_GY_LAM_DEN = A_GY_LAM + 2
+A_GY_RC0 = A_GY_LAM + 3  #: the window's A_GY_RC before the correlation inflation n_c [rad^2/s^2]
+A_WK_PHT = A_GY_RC0 + 1
 A_WK_K = A_WK_PHT + 2 * NX
 NAUX = A_WK_K + 2 * NX
 
@@ -283,7 +294,8 @@ K_SWITCH_LOG_RATIO = 73  #: lead another hypothesis needs to become the reported
 K_MAX_HYPOTHESES = 74  #: most line / direction hypotheses kept at once [-]
 K_REVERSAL = 75  #: 1: at standstill also keep the reversed sense of travel
 K_MAX_TIME_JUMP = 76  #: a measurement further ahead of the state needs confirming [s]
-NCFG = 77
+K_GYRO_AD_M = 77  #: memory of the learned curvature-error scale, in metres travelled (0: fixed at 1) [m]
+NCFG = 78
 
 # ---------------------------------------------------------------- measurement kinds and result codes
 M_IMU = 1

@@ -243,6 +243,7 @@ def datasheet_config_for(
         curvature_rel_sigma=0.25,
         curvature_registration_m=20.0,
         curvature_corr_length_m=40.0,
+        gyro_curvature_adaptive_m=200.0,
         registration_psd_m2pm=1.0e-3,
         gps_adaptive_window_s=600.0,
         gps_adaptive_prior_s=30.0,

@@ -766,12 +766,26 @@ static void gyro_window_update(double *x, double *P, double *aux, long *cnt, con
     double n = aux[A_GY_N];
     aux[A_GY_N] = 0.0;
     sync_block(x, P, aux, cfg, cnt);
-    double r = sq(cfg[K_GYRO_SIGMA]) / n + aux[A_GY_RC] / n;
+    double lam = aux[A_GY_LAM] >= 1.0 ? aux[A_GY_LAM] : 1.0; /* learned curvature-error scale */
+    double rw = sq(cfg[K_GYRO_SIGMA]) / n;
+    double rc0 = aux[A_GY_RC0] / n;
+    double r = rw + lam * aux[A_GY_RC] / n;
     double y = aux[A_GY_Y] / n;
     double nis;
     double sm = innovation1(P, aux, S, aux[A_GY_HS] / n, V, aux[A_GY_HV] / n, BG, 1.0, SG, aux[A_GY_HSG] / n,
                             MX, aux[A_GY_HMX] / n, r, y, &nis);
     aux[A_LAST_NIS_GYRO] = nis;
+    if (cfg[K_GYRO_AD_M] > 0.0 && rc0 > 0.0) { /* weighted least-squares lam, EWMAs over metres */
+        double s0 = (sm - r) + rw + lam * rc0;
+        double w = fmin(fabs(x[V]) * fmax(aux[A_T_IMU] - aux[A_GY_T0], 1e-3) / cfg[K_GYRO_AD_M], 1.0);
+        if (aux[A_GY_LAM_DEN] == 0.0) {
+            aux[A_GY_LAM_NUM] = GYRO_LAM_PRIOR;
+            aux[A_GY_LAM_DEN] = GYRO_LAM_PRIOR;
+        }
+        aux[A_GY_LAM_NUM] += w * (rc0 * (y * y - (sm - r) - rw) / (s0 * s0) - aux[A_GY_LAM_NUM]);
+        aux[A_GY_LAM_DEN] += w * (rc0 * rc0 / (s0 * s0) - aux[A_GY_LAM_DEN]);
+        aux[A_GY_LAM] = fmin(fmax(aux[A_GY_LAM_NUM] / aux[A_GY_LAM_DEN], 1.0), GYRO_LAM_MAX);
+    }
     if (nis <= cfg[K_GATE_GYRO]) {
         if (apply_update1(x, P, aux, sm, y, cfg, cnt)) {
             cnt[C_GYRO_OK] += 1;
@@ -848,6 +862,7 @@ static long step_imu(double *x, double *P, double *aux, long *cnt, double *mem, 
             aux[A_GY_HSG] = 0.0;
             aux[A_GY_HMX] = 0.0;
             aux[A_GY_RC] = 0.0;
+            aux[A_GY_RC0] = 0.0;
         }
         aux[A_GY_N] += 1.0;
         aux[A_GY_Y] += y;
@@ -857,6 +872,7 @@ static long step_imu(double *x, double *P, double *aux, long *cnt, double *mem, 
         aux[A_GY_HMX] += wx;
         /* curvature-model error from the geometry: sigma_k^2 = s0^2 + (r k)^2 + (l dk/ds)^2 */
         double rc = sq(x[V] * cfg[K_CURV_SIGMA]) + sq(x[V] * (cfg[K_CURV_REL] * k)) + sq(x[V] * (cfg[K_CURV_REG_M] * dk_ds));
+        aux[A_GY_RC0] += rc;
         /* correlated over K_CURV_CORR_M: the windows inside that length share it (n_c >= 1) */
         if (cfg[K_CURV_CORR_M] > 0.0) {
             double dtc = dt_imu > 1e-3 ? dt_imu : 1e-3;
