@@ -258,6 +258,7 @@ def spawn_reversals(order, ns, X, PP, AUX, CNT, MEM, IDX, cfg):
         K.sync_block(X[h], PP[h], AUX[h], cfg, CNT[h])
         _copy_slot(free, h, X, PP, AUX, CNT, MEM, IDX, False)
         K.mirror(X[free], PP[free], AUX[free])
+        AUX[free, L.A_LOGLIK] -= cfg[L.K_REVERSAL_PRIOR]  # a reversal is a priori unlikely
         order[total] = free
         total += 1
     if total > nh:

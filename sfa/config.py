@@ -160,6 +160,11 @@ class FilterConfig:
     switch_log_ratio: float = 4.6  #: lead another hypothesis needs to become the reported one (100:1) [-]
     max_hypotheses: int = 6  #: most line / direction hypotheses kept at once [-]
     reversal_hypotheses: bool = True  #: at standstill also keep the reversed sense of travel
+    #: prior log odds against the train reversing at a standstill once its sense of travel is known: the
+    #: mirrored copy starts this far behind its source (4.6 = 1:100). With switch_log_ratio it must then
+    #: gather 9.2 of evidence to be reported: a real reversal gives that within a GNSS fix or two, while
+    #: gyro-vs-curvature evidence alone in a GNSS outage gave the wrong sense 5.6 (docs/filter.md)
+    reversal_log_prior: float = 4.6
     loglik_nis_cap: float = 50.0  #: NIS cap in the hypothesis likelihood (robust to outliers) [NIS]
 
     def __post_init__(self) -> None:
@@ -195,6 +200,10 @@ class FilterConfig:
                 f"fault_confidence ({self.fault_confidence!r}) must be >= confidence ({self.confidence!r})")
         if self.max_hypotheses < 1:
             raise FilterConfigError("max_hypotheses must be >= 1")
+        if self.reversal_log_prior >= self.prune_log_ratio:
+            raise FilterConfigError(
+                f"reversal_log_prior ({self.reversal_log_prior!r}) must be < prune_log_ratio "
+                f"({self.prune_log_ratio!r}): a mirrored copy further behind is pruned as it is made")
 
     def replace(self, **changes: object) -> FilterConfig:
         """A copy with some fields changed (validated)."""
@@ -283,6 +292,7 @@ class FilterConfig:
         c[L.K_SWITCH_LOG_RATIO] = self.switch_log_ratio
         c[L.K_MAX_HYPOTHESES] = self.max_hypotheses
         c[L.K_REVERSAL] = 1.0 if self.reversal_hypotheses else 0.0
+        c[L.K_REVERSAL_PRIOR] = self.reversal_log_prior
         c[L.K_MAX_TIME_JUMP] = self.max_time_jump_s
         c[L.K_SNAP_PERIOD] = self.snapshot_period_s if self.slip_rewind else -1.0
         c[L.K_INIT_SIGMA_MY] = self.init_sigma_yaw_misalignment_rad

@@ -295,7 +295,8 @@ K_MAX_HYPOTHESES = 74  #: most line / direction hypotheses kept at once [-]
 K_REVERSAL = 75  #: 1: at standstill also keep the reversed sense of travel
 K_MAX_TIME_JUMP = 76  #: a measurement further ahead of the state needs confirming [s]
 K_GYRO_AD_M = 77  #: memory of the learned curvature-error scale, in metres travelled (0: fixed at 1) [m]
-NCFG = 78
+K_REVERSAL_PRIOR = 78  #: log prior odds against a reversal at a standstill (the mirror starts behind) [-]
+NCFG = 79
 
 # ---------------------------------------------------------------- measurement kinds and result codes
 M_IMU = 1

@@ -138,3 +138,49 @@ def test_compact_keeps_only_the_junction_sets_of_live_slots():
     assert bank.spawn_sets == [frozenset(), frozenset(range(5))] and bank.spawned(0) == frozenset(range(5))
     lo, hi = int(bank.IDX[I_JLO, 0]), int(bank.IDX[I_JHI, 0])
     assert bank.JS.tolist() == bank.JS[lo:hi].tolist() == [50.0, 60.0, 70.0]
+
+
+def _reversal_run():
+    """The Jena tram (as-built path, actual sensor errors of the shipped scenario) from Lobeda-Ost to
+    Schlegelstraße, a cab change there, and back to 300 m."""
+    import dataclasses
+
+    from interface_modules.offline import generate as sim_generate
+    from interface_modules.scenario import JourneyPoint, load_scenario
+    from tools.bench_replay import load_benchmark_module
+
+    sc = load_scenario("tram-urban")
+    points = (JourneyPoint(153.0, name="A", departure_s=10.0),
+              JourneyPoint(535.4, name="B", arrival_s=70.0, departure_s=90.0, dwell_s=20.0),
+              JourneyPoint(300.0, name="C", arrival_s=130.0, departure_s=140.0, dwell_s=5.0))
+    sc = dataclasses.replace(sc.with_overrides(journey=points), max_duration_s=150.0)
+    run = sim_generate(sc, 3)
+    acc = load_benchmark_module("bench_filter_accuracy")
+    return sc, run, acc.to_measurements(run.messages())
+
+
+@pytest.mark.parametrize("prior", [0.0, 4.6])
+def test_a_real_reversal_is_reported_at_the_first_fix_whatever_the_reversal_prior(prior):
+    """The mirrored copy spawned at the stop starts ``reversal_log_prior`` behind (4.6, the default):
+    once the train moves the other way the first GNSS fix puts it far ahead, so the report turns at
+    that fix with or without the prior."""
+    from interface_modules.tracks import database_path
+    from sfa.presets import datasheet_config_for
+
+    sc, run, meas = _reversal_run()
+    te, ts, td = run.truth["epoch"], run.truth["arc_length"], run.truth["direction"]
+    back = te[np.argmax(td != td[0])]  # the truth turns at the cab change
+    cfg = datasheet_config_for(sc.imu.preset, sc.odometer.preset, sc.gps.preset)
+    cfg = cfg.replace(reversal_log_prior=prior)
+    with TrackDatabase.open(database_path(sc)) as track:
+        f = TrackFilter(track, cfg)
+        turned, worst = None, 0.0
+        for m in meas:
+            f.process(m)
+            e = f.estimate()
+            if turned is None and m.t_s > back and e.direction == -1:
+                turned = m.t_s
+            if m.t_s > back + 5.0:
+                worst = max(worst, abs(e.arc_length_m - float(np.interp(m.t_s, te, ts))))
+    assert turned is not None and turned - back < 6.0, (turned, back)
+    assert worst < 3.0
