@@ -59,6 +59,11 @@ def _udp_bound(port: int) -> bool:
     return False
 
 
+def _files_under(path: Path) -> int:
+    """Files in the directory tree ``path`` (0 when it does not exist)."""
+    return sum(len(files) for _, _, files in os.walk(path))
+
+
 def start_once(packets, cache_base: Path, tmp: Path, seconds: float, engine: str = "auto",
                timeout_s: float = 180.0, label: str = "run", track: str | None = None,
                sets: tuple[str, ...] = ()) -> dict:
@@ -76,6 +81,7 @@ def start_once(packets, cache_base: Path, tmp: Path, seconds: float, engine: str
     env["SFA_ENGINE"] = engine
     env["SFA_NUMBA_CACHE_BASE"] = str(cache_base)
     env["NUMBA_CACHE_DIR"] = str(cache_base)
+    result: dict = {"label": label, "cache_files_at_spawn": _files_under(cache_base)}
     log_path = tmp / f"listener-{label}.log"
     first: list[float] = []
     outputs = [0]
@@ -89,7 +95,6 @@ def start_once(packets, cache_base: Path, tmp: Path, seconds: float, engine: str
     rx = threading.Thread(target=obcu_ack_loop, args=(obcu, stop, on_output), daemon=True)
     rx.start()
     socks: dict[int, socket.socket] = {}
-    result: dict = {"label": label}
     with open(log_path, "w") as log_fh:
         spawn = time.monotonic()
         proc = subprocess.Popen(argv, stderr=log_fh, stdout=subprocess.DEVNULL, env=env)
@@ -135,6 +140,7 @@ def start_once(packets, cache_base: Path, tmp: Path, seconds: float, engine: str
         for s in socks.values():
             s.close()
     result["outputs"] = outputs[0]
+    result["cache_files_after"] = _files_under(cache_base)
     for line in log_path.read_text().splitlines():
         if line.startswith("{") and '"event":"warm_up"' in line:
             ev = json.loads(line)
@@ -190,6 +196,8 @@ def summary(results: dict[str, list[dict]]) -> dict[str, dict]:
         out[kind]["engine"] = rows[0].get("engine", "?") if rows else "?"
         out[kind]["samples_first_output_s"] = tuple(r.get("first_output_s") for r in rows)
         out[kind]["samples_peak_rss_mib"] = tuple(r.get("peak_rss_mib") for r in rows)
+        out[kind]["cache_files_at_spawn"] = max((r["cache_files_at_spawn"] for r in rows), default=None)
+        out[kind]["cache_files_after"] = tuple(r.get("cache_files_after") for r in rows)
     return out
 
 
@@ -218,6 +226,11 @@ def table(s: dict, scenario: str, repeats: int) -> str:
         lines.append(f"{name:22}{_fmt(c[key], unit):>14}{_fmt(jc[key], unit):>14}{_fmt(jw[key], unit):>14}"
                      f"{_ratio(jc[key], c[key]):>19}{_ratio(jw[key], c[key]):>19}")
     lines.append(f"engine: compiled start ran on {c['engine']}")
+    lines.append(
+        f"numba cache files at spawn (most of any run): compiled {c['cache_files_at_spawn']}, jit cold "
+        f"{jc['cache_files_at_spawn']}, jit warm {jw['cache_files_at_spawn']}; written by the starts: "
+        f"compiled {c['cache_files_after']}, jit cold {jc['cache_files_after']}"
+    )
     fo, rss = c["first_output_s"], c["peak_rss_mib"]
     lines.append(
         f"target (compiled start): first output <= {TARGET_FIRST_OUTPUT_S:g} s: "

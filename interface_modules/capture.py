@@ -106,22 +106,62 @@ def _fold(s: np.ndarray) -> np.ndarray:
 
 def write_pcap(run, path: str | Path) -> int:
     """Write the run's packets as a classic pcap (dpkt.pcap.Writer); return the number of frames."""
+    return write_packets_pcap(run.packets, run.scenario.network, path)
+
+
+def write_packets_pcap(packets, network, path: str | Path) -> int:
+    """Write ``packets`` (``.arrival_s``, ``.src_port``, ``.payload``) as a classic pcap from
+    ``network.host`` to ``network.listener_host:listener_port``; return the number of frames."""
     import dpkt
 
-    net = run.scenario.network
     try:
-        src_ip = socket.inet_aton(net.host)
-        dst_ip = socket.inet_aton(net.listener_host)
+        src_ip = socket.inet_aton(network.host)
+        dst_ip = socket.inet_aton(network.listener_host)
     except OSError as exc:
         raise SimError(f"network.host / listener_host must be IPv4 addresses: {exc}") from exc
-    frames = udp_frames(run.packets, src_ip, dst_ip, net.listener_port)
+    frames = udp_frames(packets, src_ip, dst_ip, network.listener_port)
     try:
         with open(path, "wb") as fh:
             writer = dpkt.pcap.Writer(fh, snaplen=65535, linktype=dpkt.pcap.DLT_EN10MB)
-            writer.writepkts(zip((p.arrival_s for p in run.packets), frames, strict=True))
+            writer.writepkts(zip((p.arrival_s for p in packets), frames, strict=True))
     except OSError as exc:
         raise SimError(f"cannot write capture {str(path)!r}: {exc}") from exc
     return len(frames)
+
+
+def strobe_dated(scenario):
+    """The scenario with no epoch in any IMU, odometer or GNSS datagram (``send_epoch = false``): the
+    thesis's sensors' form, every measurement dated by the listener's STROBE clock at its arrival."""
+    import dataclasses
+
+    return scenario.with_overrides(
+        **{m: dataclasses.replace(getattr(scenario, m), send_epoch=False) for m in ("imu", "odometer", "gps")}
+    )
+
+
+def datagrams_of(run) -> list[tuple[float, tuple[str, int], bytes]]:
+    """The run's packets as ``(arrival time, (source host, source port), payload)``."""
+    host = "127.0.0.1"
+    return [(float(p.arrival_s), (host, int(p.src_port)), bytes(p.payload)) for p in run.packets]
+
+
+def lossy(datagrams, seed: int = 17) -> list:
+    """``datagrams`` ``(time, source, payload)`` with 1 % of them lost, 1 % duplicated and 1 % overtaken by
+    their successor (one seeded draw per datagram); the arrival times stay those of the original stream,
+    in ascending order. The lossy form of the golden captures
+    (tests/test_golden_replay.py), the fast replay's tests and ``sfa bench``'s replay capture."""
+    rng = np.random.default_rng(seed)
+    out: list = []
+    for d in datagrams:
+        u = rng.random()
+        if u < 0.01:
+            continue  # lost
+        out.append(d)
+        if u < 0.02:
+            out.append(d)  # duplicated
+        elif u < 0.03 and len(out) >= 2:
+            out[-1], out[-2] = out[-2], out[-1]  # overtaken by its successor
+    return [(t, src, pl) for (_, src, pl), t in zip(out, sorted(d[0] for d in out), strict=True)]
 
 
 def event_column(run) -> list[str]:

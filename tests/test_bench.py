@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import importlib.util
 import json
+import re
 import subprocess
 import sys
 from pathlib import Path
@@ -282,6 +283,10 @@ def test_bench_quick_writes_a_complete_table(tmp_path):
     assert "plain FilterPy EKF" in gen["compared"] and "odometer only" in gen["compared"]
     fast = find("replay", "fast replay end to end")
     assert "identical to the exact replay: True" in fast["compared"]
+    # issue 17's must-show capture: STROBE-dated, with the losses, duplicates and reorderings it repaired
+    assert "STROBE-dated" in fast["name"]
+    for word in ("lost", "duplicates", "reordered"):
+        assert re.search(rf"\b{word} [1-9]", fast["name"]), (word, fast["name"])
     sustained = find("replay", "back to back", "slowest")
     assert len(sustained["samples"]) == 10 and sustained["value"] == pytest.approx(min(sustained["samples"]))
     assert sustained["met"] == (sustained["value"] >= 1e6)
@@ -291,6 +296,7 @@ def test_bench_quick_writes_a_complete_table(tmp_path):
     )
     start = find("startup", "first output")
     assert "JIT on an empty cache" in start["compared"] and "JIT on a warm cache" in start["compared"]
+    assert "numba cache empty at spawn in every cold start: True" in start["compared"]
     md = (out / "bench.md").read_text()
     assert md.count("\n| ") == len(rows) + 1  # header + one line per row (separator starts with |-)
     text = doc.read_text()

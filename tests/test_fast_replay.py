@@ -19,6 +19,8 @@ from helpers_capture import frame_ethernet, write_capture
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from interface_modules import capture as sim_capture
+from interface_modules.capture import datagrams_of, lossy
 from interface_modules.offline import generate
 from interface_modules.scenario import load_scenario
 from interface_modules.tracks import database_path
@@ -92,11 +94,8 @@ def strobe_dated(tmp_path_factory):
     """60 s of the E1 regional line with every sensor's epoch left out (the thesis's sensors' form):
     the listener dates each measurement with the STROBE clock at its arrival."""
     d = tmp_path_factory.mktemp("strobe")
-    sc = dataclasses.replace(load_scenario("regional-long"), max_duration_s=60.0)
-    sc = sc.with_overrides(**{m: dataclasses.replace(getattr(sc, m), send_epoch=False)
-                              for m in ("imu", "odometer", "gps")})  # fmt: skip
-    run = generate(sc)
-    dgrams = [(float(p.arrival_s), ("127.0.0.1", int(p.src_port)), bytes(p.payload)) for p in run.packets]
+    sc = sim_capture.strobe_dated(dataclasses.replace(load_scenario("regional-long"), max_duration_s=60.0))
+    dgrams = datagrams_of(generate(sc))
     write_capture(d / "capture.pcap", dgrams)
     track = TrackDatabase.open(database_path(sc))
     sel = FilterSelection(imu=sc.imu.preset, odometer=sc.odometer.preset, gps=sc.gps.preset)
@@ -415,23 +414,6 @@ def test_invalid_datagrams_are_counted_identically(sim, tmp_path):
     assert_same(exact, fast)
 
 
-def _lossy(dgrams, seed: int = 17):
-    """1 % of the datagrams lost, 1 % duplicated, 1 % overtaken by their successor (as the golden
-    STROBE-dated lossy capture), arrival times kept ascending."""
-    rng = np.random.default_rng(seed)
-    out: list = []
-    for d in dgrams:
-        u = rng.random()
-        if u < 0.01:
-            continue
-        out.append(d)
-        if u < 0.02:
-            out.append(d)
-        elif u < 0.03 and len(out) >= 2:
-            out[-1], out[-2] = out[-2], out[-1]
-    return [(t, src, p) for (_, src, p), t in zip(out, sorted(d[0] for d in out), strict=True)]
-
-
 @pytest.mark.parametrize("dating", ["epoch", "strobe"])
 def test_loss_duplicates_and_reordering_take_the_compiled_path(sim, strobe_dated, tmp_path, dating):
     """The listener's own sequence buffers (listener.seqbuf, the prefix pipeline's objects) take every
@@ -440,7 +422,7 @@ def test_loss_duplicates_and_reordering_take_the_compiled_path(sim, strobe_dated
     base = sim if dating == "epoch" else strobe_dated
     opts = ReplayOptions() if dating == "epoch" else ReplayOptions(config=ListenerConfig(filter=base["sel"]))
     cap = tmp_path / "lossy.pcap"
-    write_capture(cap, _lossy(base["dgrams"]))
+    write_capture(cap, lossy(base["dgrams"]))
     exact = replay_capture(cap, base["track"], opts)
     fast, info = try_fast_replay(cap, base["track"], opts)
     assert info.used, info.reason
@@ -455,7 +437,7 @@ def test_sequence_repair_through_junctions_and_held_jumps(tram, tmp_path):
     forward jumps the buffers hold as suspects (listener.seqbuf's trust rules) in one capture."""
     dgrams = [(g.time_s, g.src, g.payload) for g in read_capture(tram["cap"], 48000, CaptureStats())]
     cap = tmp_path / "tram-lossy.pcap"
-    write_capture(cap, _lossy(dgrams, seed=5))
+    write_capture(cap, lossy(dgrams, seed=5))
     exact = replay_capture(cap, tram["track"], tram["opts"])
     fast, info = try_fast_replay(cap, tram["track"], tram["opts"])
     assert info.used, info.reason
@@ -474,7 +456,7 @@ def test_a_content_rejection_with_sequence_repair_falls_back(sim, tmp_path):
     fields[-1] += 1.0e5
     dgrams[k] = (dgrams[k][0], dgrams[k][1], struct.pack("<BHBB7d", *fields))
     cap = tmp_path / "future-lossy.pcap"
-    write_capture(cap, _lossy(dgrams))
+    write_capture(cap, lossy(dgrams))
     result, info = try_fast_replay(cap, sim["track"], ReplayOptions())
     assert result is None and "epoch_future" in info.reason
 

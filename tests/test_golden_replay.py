@@ -40,6 +40,7 @@ import hashlib
 import numpy as np
 import pytest
 
+from interface_modules.capture import datagrams_of, lossy, strobe_dated
 from interface_modules.offline import generate
 from interface_modules.scenario import load_scenario
 from interface_modules.tracks import database_path
@@ -70,23 +71,10 @@ def _capture(name: str) -> tuple[object, list[tuple[float, tuple[str, int], byte
     scenario = "tram-urban" if name.startswith("tram-urban") else name
     sc = dataclasses.replace(load_scenario(scenario), max_duration_s=60.0)
     if name == "tram-urban-strobe-lossy":
-        sc = sc.with_overrides(**{m: dataclasses.replace(getattr(sc, m), send_epoch=False)
-                                  for m in ("imu", "odometer", "gps")})
-    sim = generate(sc)
-    dgrams = [(float(p.arrival_s), ("127.0.0.1", int(p.src_port)), bytes(p.payload)) for p in sim.packets]
+        sc = strobe_dated(sc)
+    dgrams = datagrams_of(generate(sc))
     if name == "tram-urban-strobe-lossy":
-        rng = np.random.default_rng(17)
-        out: list = []
-        for d in dgrams:
-            u = rng.random()
-            if u < 0.01:
-                continue  # lost
-            out.append(d)
-            if u < 0.02:
-                out.append(d)  # duplicated
-            elif u < 0.03 and len(out) >= 2:
-                out[-1], out[-2] = out[-2], out[-1]  # overtaken by its successor
-        dgrams = [(t, src, p) for (_, src, p), t in zip(out, sorted(d[0] for d in out), strict=True)]
+        dgrams = lossy(dgrams, seed=17)
     return sc, dgrams
 
 

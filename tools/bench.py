@@ -4,8 +4,10 @@ Sections (each a module of its own, see their docstrings for what exactly is com
 
 - accuracy on the shipped scenarios: SFA against odometer-only, raw GPS projection and a plain
   per-message FilterPy EKF, with the interval coverage (tools/bench_accuracy.py),
-- replay throughput: filter core alone, its ratio to the C reference of the same step, fast replay
-  end to end, exact replay end to end, the naive per-message FilterPy path (tools/bench_replay.py),
+- replay throughput on issue 17's must-show capture (regional-long, STROBE-dated, 1 % loss, duplicates
+  and reordering): sfa replay's default path end to end (median and slowest of 10 back to back), the
+  filter core alone on its filter inputs and its ratio to the C reference of the same step, exact
+  replay end to end, the naive per-message FilterPy path, all per CPU second (tools/bench_replay.py),
 - listener latency and drops at 1x / 10x / 100x nominal rates and CPU at 1x (tools/bench_live.py),
 - listener memory over a soak at 1x (10 min; 1 min in --quick), run in the background while the
   in-process sections run (it is not timing-sensitive; said in the table),
