@@ -72,8 +72,8 @@ class FilterConfig:
     gyro_average_samples: int = 5
     gyro_average_max_s: float = 0.1  #: longest time a gyro window spans; a longer one is applied as it is [s]
     #: learn how far the database's curvature is from the path's: the gyro windows' innovations estimate
-    #: a scale (>= 1) of the curvature-model variance above, with this memory in metres travelled (an
-    #: EWMA weighted by each window's length); 0 keeps the scale at 1 (the model-matched form).
+    #: a scale (>= 1) of the curvature-model variance above (weighted least squares, with this memory
+    #: in metres travelled; docs/filter.md); 0 keeps the scale at 1 (the model-matched form).
     #: sfa.presets.datasheet_config_for sets 200 m: five curvature correlation lengths
     gyro_curvature_adaptive_m: float = 0.0
     # --- odometer

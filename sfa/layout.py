@@ -135,19 +135,19 @@ A_AD_FREEZE = A_AD_HI + 1
 A_AD_HIST = A_AD_FREEZE + 1
 AD_HIST = 45  #: history entries (covers AD_HIST x AD_HIST_SPACING_S seconds, beyond the longest lag)
 AD_HIST_SPACING_S = 1.0  #: spacing of the history entries [s]
-#: Scratch for the updates (no meaning between calls): P H' (two columns of NX) and the gain K (two
-#: columns of NX). Kept in aux so the compiled updates allocate nothing per measurement.
 #: Scale of the curvature-model variance (>= 1), learned from the gyro innovations when K_GYRO_AD_M > 0
 #: (docs/filter.md, "Curvature error"): like the GNSS model, one value for every hypothesis, the
 #: reported one's (it lies inside gnss_noise.share's range, and the bank copies it to the others before
 #: each IMU sample), so that a wrong hypothesis cannot widen its own model until it fits
 A_GY_LAM = A_AD_HIST + AD_ENTRY * AD_HIST
-#: its estimate, a ratio of two averages over the windows (same weights): the residual variance the
-#: curvature error must explain, y^2 - h P h' - rw, over the modelled one, rc0 [rad^2/s^2]; so a window
-#: whose modelled curvature error is small next to the gyro's own noise barely moves it
+#: its weighted least-squares estimate over the windows, numerator and denominator, each an EWMA:
+#: sum(rc0 a / s0^2) and sum(rc0^2 / s0^2) (sfa.kernels.gyro_window_update), so that a window whose
+#: modelled curvature error is small next to the gyro's own noise barely moves it
 A_GY_LAM_NUM = A_GY_LAM + 1
 A_GY_LAM_DEN = A_GY_LAM + 2
 A_GY_RC0 = A_GY_LAM + 3  #: the window's A_GY_RC before the correlation inflation n_c [rad^2/s^2]
+#: Scratch for the updates (no meaning between calls): P H' (two columns of NX) and the gain K (two
+#: columns of NX). Kept in aux so the compiled updates allocate nothing per measurement.
 A_WK_PHT = A_GY_RC0 + 1
 A_WK_K = A_WK_PHT + 2 * NX
 NAUX = A_WK_K + 2 * NX
