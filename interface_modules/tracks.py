@@ -16,6 +16,7 @@
 
 from __future__ import annotations
 
+import functools
 import hashlib
 import os
 from pathlib import Path
@@ -91,8 +92,24 @@ def _geojson_database(source: Path) -> Path:
     return _cached(source, digest, lambda tmp: build_source_database(source, "geojson", tmp))
 
 
+@functools.cache
+def builder_digest() -> str:
+    """sha256 of the sources that build a database (the track_db package and this module): a cache
+    database made by other code is not reused (one built before an importer change once kept the E1
+    line's old geometry, and its golden capture hash with it, on the machine that had it)."""
+    import track_db
+
+    h = hashlib.sha256()
+    files = sorted(Path(track_db.__file__).parent.rglob("*.py")) + [Path(__file__)]
+    for f in files:
+        h.update(f.name.encode() + b"\0" + f.read_bytes())
+    return h.hexdigest()
+
+
 def _cached(source: Path, digest: str, build) -> Path:
-    """The cache database for ``source`` with ``digest``, built atomically by ``build(tmp)`` if missing."""
+    """The cache database for ``source`` with ``digest`` (and the builder's sources), built atomically by
+    ``build(tmp)`` if missing."""
+    digest = hashlib.sha256((digest + builder_digest()).encode()).hexdigest()
     target = cache_dir() / f"{source.name}-{digest[:16]}.db"
     if target.is_file():
         return target
