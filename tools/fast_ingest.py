@@ -752,6 +752,31 @@ def record_capacity(data) -> int:
     return max(1, size // (RECORD_HEADER_BYTES + ETH_HEADER_BYTES + 20) + 1)
 
 
+def unique_few(key: np.ndarray, most: int = 32):
+    """``np.unique(key, return_index=True, return_inverse=True)`` of an int64 ``key`` with few distinct
+    values (a capture's senders): one pass over ``key`` per value instead of a sort; np.unique itself
+    beyond ``most`` values."""
+    n = key.shape[0]
+    inv = np.full(n, -1, dtype=np.int64)
+    vals: list[int] = []
+    firsts: list[int] = []
+    i = 0
+    while i < n:
+        if len(vals) == most:
+            return np.unique(key, return_index=True, return_inverse=True)
+        v = key[i]
+        inv[i:][key[i:] == v] = len(vals)  # (every earlier row has its value already)
+        vals.append(int(v))
+        firsts.append(i)
+        left = inv[i:] < 0
+        j = int(np.argmax(left))
+        i = i + j if left[j] else n
+    order = np.argsort(np.asarray(vals, dtype=np.int64), kind="stable")
+    rank = np.empty(order.size, dtype=np.int64)
+    rank[order] = np.arange(order.size)
+    return np.asarray(vals, dtype=np.int64)[order], np.asarray(firsts, dtype=np.int64)[order], rank[inv]
+
+
 def _be_int(d, at: np.ndarray, nbytes: int) -> np.ndarray:
     """The ``nbytes`` bytes at each offset ``at`` of ``d`` as one big-endian int64 (wrapping: a key)."""
     k = np.zeros(at.shape[0], dtype=np.int64)
@@ -818,7 +843,7 @@ class Ingested:
         port_type = (_be_int(d, o - 8, 2) << 8) | self.row_code[rows]
         if not v6.any():  # one int64 key: address, port, type (np.unique on rows is much slower)
             key1 = (_be_int(d, ip + 12, 4) << 24) | port_type
-            return np.unique(key1, return_index=True, return_inverse=True)
+            return unique_few(key1)
         key = np.empty((rows.size, 3), dtype=np.int64)  # the walk's stream key, with the type
         key[:, 0] = np.where(v6, _be_int(d, ip + 8, 8), 0)
         key[:, 1] = np.where(v6, _be_int(d, ip + 16, 8), _be_int(d, ip + 12, 4))

@@ -592,9 +592,8 @@ def _replay_ingested(got, track, options, ingest_s: float = 0.0):
             return None, _info(False, seq, h)
         undated_rel = np.isnan(got.t_s[seq.m_idx])
         n_by_strobe = int(np.count_nonzero(undated_rel))
-        mrows, m_time, kind, t_s, vals = (
-            a[seq.m_idx] for a in (got.m_row, got.m_time, got.kind, got.t_s, got.vals)
-        )
+        mrows, m_time, kind, t_s = (a[seq.m_idx] for a in (got.m_row, got.m_time, got.kind, got.t_s))
+        vals = None  # (taken once, in the filter's order, after the GNSS projection below)
         m_pos, m_now = seq.m_pos, seq.m_now
         s_pos, s_ts, s_time = seq.s_pos, got.s_ts[seq.s_idx], got.s_time[seq.s_idx]
         n_strobes = int(seq.s_idx.size)
@@ -628,8 +627,8 @@ def _replay_ingested(got, track, options, ingest_s: float = 0.0):
         order = seq.merge_order(t_s)
         if np.any(order != np.arange(order.size)):
             seq = dataclasses.replace(seq, m_idx=seq.m_idx[order])
-            mrows, m_time, kind, t_s, vals, fresh_min, m_now, future = (
-                a[order] for a in (mrows, m_time, kind, t_s, vals, fresh_min, m_now, future)
+            mrows, m_time, kind, t_s, fresh_min, m_now, future = (
+                a[order] for a in (mrows, m_time, kind, t_s, fresh_min, m_now, future)
             )
     lap("clock")
 
@@ -640,8 +639,8 @@ def _replay_ingested(got, track, options, ingest_s: float = 0.0):
         gm = got.g_meas[gq]
         got.vals[gm, 0] = np.asarray(e, dtype=np.float64)
         got.vals[gm, 1] = np.asarray(nn, dtype=np.float64)
-        if seq is not None:  # (vals was taken in release order before the projection)
-            vals = got.vals[seq.m_idx]
+    if seq is not None:  # the values in the filter's order, with the projected GNSS fixes
+        vals = got.vals[seq.m_idx]
     if n_future:  # Pipeline._date: epoch_future rejection
         keep = ~future
         mrows, m_time, kind, t_s, vals, fresh_min, m_now = (
