@@ -30,7 +30,8 @@ front is the held item with the lowest arrival number, and "the queue is not emp
 
 Every call writes the ids it releases to ``out`` (``tb[T_NOUT]`` of them), the ids it drops (duplicates,
 late items, dropped probation items and suspects) to ``drop`` (``tb[T_NDROP]``), and alert records to
-``al`` (``tb[T_NALERT]`` rows of ``A_*``, at most ``tb[T_ALERT_CAP]``); the caller resets the counts.
+``al`` (``tb[T_NALERT]`` rows of ``A_*``, at most ``tb[T_ALERT_CAP]``, which the caller sets); each
+call from Python starts the counts from 0.
 """
 
 from __future__ import annotations
@@ -229,6 +230,14 @@ def new_state(cfg, nslots: int):
 
 
 # ============================================================================ helpers
+
+
+@njit(cache=True, _nrt=False)
+def _reset(tb):
+    """A call from Python starts with no output (the counts of ``out``, ``drop`` and ``al``)."""
+    tb[T_NOUT] = 0
+    tb[T_NDROP] = 0
+    tb[T_NALERT] = 0
 
 
 @njit(cache=True, _nrt=False)
@@ -935,6 +944,7 @@ def _push(si, sf, k, tb, out, drop, al, s, seq, iid, now):
 def push(si, sf, k, tb, out, drop, al, s, seq, iid, now):
     """Accept item ``iid`` with 16-bit number ``seq`` at ``now`` into slot s; its releases to ``out``.
     Returns 0, or -1 (nothing done) when ``now`` is NaN."""
+    _reset(tb)
     if now != now:
         return -1
     _push(si, sf, k, tb, out, drop, al, s, seq, iid, now)
@@ -945,6 +955,12 @@ def push(si, sf, k, tb, out, drop, al, s, seq, iid, now):
 @njit(cache=True, _nrt=False)
 def poll(si, sf, k, tb, out, drop, al, s, now):
     """Release what the passage of time makes due in slot s. -1 (nothing done) when ``now`` is NaN."""
+    _reset(tb)
+    return _poll(si, sf, k, tb, out, drop, al, s, now)
+
+
+@njit(cache=True, _nrt=False)
+def _poll(si, sf, k, tb, out, drop, al, s, now):
     if now != now:
         return -1
     if now > sf[s, F_NOW]:
@@ -1026,6 +1042,7 @@ def _flush(si, sf, k, tb, out, drop, s):
 @njit(cache=True, _nrt=False)
 def flush(si, sf, k, tb, out, drop, s):
     """Release everything held in slot s, in order (gaps declared lost); drop the probation items."""
+    _reset(tb)
     _flush(si, sf, k, tb, out, drop, s)
 
 
@@ -1082,6 +1099,12 @@ def table_push(si, sf, k, tb, out, drop, al, s, kid, seq, iid, now):
     slot); the slot used, or -1
     (nothing done) when ``now`` is NaN. A new stream beyond the table's size evicts the least
     recently used one (its items flushed to ``out`` first; ``tb[T_EVICTED_KID]`` names it)."""
+    _reset(tb)
+    return _table_push(si, sf, k, tb, out, drop, al, s, kid, seq, iid, now)
+
+
+@njit(cache=True, _nrt=False)
+def _table_push(si, sf, k, tb, out, drop, al, s, kid, seq, iid, now):
     if now != now:
         return -1
     if s < 0:
@@ -1110,12 +1133,18 @@ def table_next_deadline(si, sf, k, tb):
 def table_poll(si, sf, k, tb, out, drop, al, now):
     """Release what is due in every stream (each stream's items in order, streams in the active list's
     order)."""
+    _reset(tb)
+    _table_poll(si, sf, k, tb, out, drop, al, now)
+
+
+@njit(cache=True, _nrt=False)
+def _table_poll(si, sf, k, tb, out, drop, al, now):
     a = tb[T_NACTIVE] - 1
     while a >= 0:  # (a slot leaving the list takes the last one's place: already visited)
         s = tb[T_ACTIVE + a]
         d = next_deadline(si, sf, k, s)
         if not math.isnan(d) and d <= now:
-            poll(si, sf, k, tb, out, drop, al, s, now)
+            _poll(si, sf, k, tb, out, drop, al, s, now)
         _set_active(si, tb, s)
         a -= 1
 
@@ -1123,6 +1152,7 @@ def table_poll(si, sf, k, tb, out, drop, al, now):
 @njit(cache=True, _nrt=False)
 def table_flush(si, sf, k, tb, out, drop):
     """Release everything held in every stream (for STOP and shutdown)."""
+    _reset(tb)
     while tb[T_NACTIVE] > 0:
         _flush(si, sf, k, tb, out, drop, tb[T_ACTIVE + tb[T_NACTIVE] - 1])
 
@@ -1138,6 +1168,7 @@ def run(si, sf, k, tb, out, out_t, out_b, drop, al, kid_slot, kids, seqs, ids, t
 
     Returns (datagrams pushed, -1 if ``stop`` was not pushed else whether its own push released it,
     releases made); -2 as the first value when an arrival time is NaN."""
+    _reset(tb)
     batch = 0
     stop_released = -1
     n = kids.shape[0]
@@ -1149,7 +1180,7 @@ def run(si, sf, k, tb, out, out_t, out_b, drop, al, kid_slot, kids, seqs, ids, t
             nd = table_next_deadline(si, sf, k, tb)
             while not math.isnan(nd) and nd <= t:
                 n0 = tb[T_NOUT]
-                table_poll(si, sf, k, tb, out, drop, al, nd)
+                _table_poll(si, sf, k, tb, out, drop, al, nd)
                 n1 = tb[T_NOUT]
                 if n1 > n0:
                     for j in range(n0, n1):
@@ -1160,7 +1191,7 @@ def run(si, sf, k, tb, out, out_t, out_b, drop, al, kid_slot, kids, seqs, ids, t
         kid = kids[i]
         s = kid_slot[kid]
         n0 = tb[T_NOUT]
-        s = table_push(si, sf, k, tb, out, drop, al, s, kid, seqs[i], ids[i], t)
+        s = _table_push(si, sf, k, tb, out, drop, al, s, kid, seqs[i], ids[i], t)
         if tb[T_EVICTED_KID] >= 0:
             kid_slot[tb[T_EVICTED_KID]] = -1
         kid_slot[kid] = s

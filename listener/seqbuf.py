@@ -173,9 +173,8 @@ class _Core:
         self.next_id = 0
 
     def begin(self, alerts: list | None) -> None:
-        tb = self.tb
-        tb[core.T_NOUT] = tb[core.T_NDROP] = tb[core.T_NALERT] = 0
-        tb[core.T_ALERT_CAP] = 0 if alerts is None else max(0, _ALERTS_MAX - len(alerts))
+        """Before a call: how many alert records the owner's list takes (the kernels reset the counts)."""
+        self.tb[core.T_ALERT_CAP] = 0 if alerts is None else max(0, _ALERTS_MAX - len(alerts))
 
     def add(self, item: object) -> int:
         iid = self.next_id
@@ -185,15 +184,14 @@ class _Core:
 
     def finish(self, alerts: list | None, key_of) -> list:
         """The items released by the last call (in order); forget the dropped ones; the alerts."""
-        tb = self.tb
+        n, nd, na = self.tb[core.T_NOUT : core.T_NALERT + 1].tolist()
         pop = self.items.pop
-        n = int(tb[core.T_NOUT])
+        if n == 1 and not nd and not na:  # the common case: one item out
+            return [pop(int(self.out[0]))]
         out = [pop(i) for i in self.out[:n].tolist()] if n else []
-        nd = int(tb[core.T_NDROP])
         if nd:
             for i in self.drop[:nd].tolist():
                 pop(i, None)
-        na = int(tb[core.T_NALERT])
         if na and alerts is not None:
             alerts.extend(_alert_record(row, key_of) for row in self.al[:na].tolist())
         return out
@@ -391,8 +389,11 @@ class StreamTable(Generic[K, T]):
             raise SequenceError("now must be a number of seconds, got NaN")
         c = self._core
         slot = self._slot_of.get(key, -1)
-        c.begin(self.alerts)
-        iid = c.add(item)
+        alerts = self.alerts
+        c.tb[core.T_ALERT_CAP] = max(0, _ALERTS_MAX - len(alerts))  # (c.begin, inlined: per datagram)
+        iid = c.next_id
+        c.next_id = iid + 1
+        c.items[iid] = item
         s = core.table_push(c.si, c.sf, c.k, c.tb, c.out, c.drop, c.al, slot, -1, seq, iid, float(now))
         if slot < 0:
             if c.tb[core.T_EVICTED_KID] >= 0:
@@ -483,7 +484,7 @@ class StreamTable(Generic[K, T]):
         base = c.next_id
         c.next_id += n
         ids = np.arange(base, base + n, dtype=np.int64)
-        c.begin(self.alerts)
+        c.begin(self.alerts)  # (the compiled loop adds to the counts: it starts them from 0)
         pushed, stop_released, _ = core.run(
             si, c.sf, c.k, c.tb, out, out_t, out_b, drop, c.al, kid_slot, kids, seqs, ids, times, stop
         )
