@@ -32,7 +32,7 @@ from __future__ import annotations
 
 import math
 import socket
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -812,6 +812,8 @@ class Ingested:
     s_ts: np.ndarray  #: sensor-set timestamp [s]
     s_time: np.ndarray  #: arrival [s]
     skipped_at: np.ndarray  #: (record number, F_*) of every skipped frame of the file
+    #: the last (rows, _pair_keys(rows)): the sender table and the sequence buffers ask for the same rows
+    _keys_memo: list = field(default_factory=list, compare=False, repr=False)
 
     @property
     def rows(self) -> int:
@@ -836,6 +838,15 @@ class Ingested:
         return inv, [(self.source(int(r)), int(self.row_code[r])) for r in rows[first].tolist()]
 
     def _pair_keys(self, rows: np.ndarray):
+        memo = self._keys_memo
+        if memo and memo[0].shape == rows.shape and np.array_equal(memo[0], rows):
+            return memo[1]
+        got = self._distinct_pairs(rows)
+        memo[:] = [rows.copy(), got]
+        return got
+
+    def _distinct_pairs(self, rows: np.ndarray):
+        """np.unique's (values, first indices, inverse) of the (address, port, SENSOR_TYPE) keys of rows."""
         d = self.data
         ip = self.row_ip[rows]
         v6 = self.row_ver[rows] == 6
