@@ -25,9 +25,9 @@ too (``sfa.batch`` does): on the JIT nothing changes, and in a compiled process 
 switches to the JIT as above, where numba's ``njit`` would fail to type the compiled kernels. A
 module whose kernels are exported must be in :data:`MODULES` and its source in :data:`SOURCES`.
 
-The listener's STROBE clock (:mod:`listener.clock_core`) and output guard (:mod:`listener.guard_core`)
-are in the extension too: their kernels are decorated with this :func:`njit`, and their sources are in
-the key like the filter's.
+The listener's STROBE clock (:mod:`listener.clock_core`), output guard (:mod:`listener.guard_core`)
+and sequence buffers (:mod:`listener.seq_core`) are in the extension too: their kernels are decorated
+with this :func:`njit`, and their sources are in the key like the filter's.
 
 ``SFA_ENGINE`` overrides the choice: ``jit`` (always the JIT, the previous behaviour, e.g. for the
 start-up benchmark's comparison), ``compiled`` (the compiled engine in every process, and required:
@@ -51,11 +51,13 @@ from pathlib import Path
 
 #: the engine's sources, relative to the sfa package: the kernels and every sfa module they read at
 #: compile time (layout constants are frozen into the machine code), and the builder's entry points;
-#: kernels of another package by their path from here (the listener's STROBE clock and output guard)
+#: kernels of another package by their path from here (the listener's STROBE clock, output guard and
+#: sequence buffers)
 SOURCES = ("kernels.py", "gnss_noise.py", "layout.py", "bank.py", "engine_build.py",
-           "../listener/clock_core.py", "../listener/guard_core.py")
+           "../listener/clock_core.py", "../listener/guard_core.py", "../listener/seq_core.py")
 #: the modules whose ``@njit`` functions the extension carries
-MODULES = ("sfa.kernels", "sfa.gnss_noise", "sfa.bank", "listener.clock_core", "listener.guard_core")
+MODULES = ("sfa.kernels", "sfa.gnss_noise", "sfa.bank", "listener.clock_core", "listener.guard_core",
+           "listener.seq_core")
 PREFIX = "_engine_"  #: extension module name: PREFIX + engine_key()
 ENV_MODE = "SFA_ENGINE"
 ENV_DIR = "SFA_ENGINE_DIR"

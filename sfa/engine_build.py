@@ -11,9 +11,9 @@ and pycc links that code into the extension, so the extension computes the same 
 runs with ``NUMBA_SLP_VECTORIZE=1`` as ``sfa`` sets it, in a child process with an empty private
 cache, so nothing stale can leak in. Needs numba and a C compiler (pycc links a small C runtime).
 
-:data:`ENTRY_POINTS` lists every kernel called from Python (sfa.filter, sfa.bank, the listener's clock
-and output guard) with its argument types: contiguous float64 vectors (A1), matrices (A2) and 3-d arrays
-(A3), int64 vectors (I1) and matrices (I2), and scalars.
+:data:`ENTRY_POINTS` lists every kernel called from Python (sfa.filter, sfa.bank, the listener's clock,
+output guard and sequence buffers) with its argument types: contiguous float64 vectors (A1), matrices
+(A2) and 3-d arrays (A3), int64 vectors (I1) and matrices (I2), and scalars.
 A kernel missing here still works in a compiled process (its first call switches to the JIT).
 """
 
@@ -46,6 +46,17 @@ ENTRY_POINTS: dict[tuple[str, str], str] = {
     ("listener.clock_core", "sensor_time"): "A1 f8",
     ("listener.guard_core", "check"): "A1 I1 i8 f8 f8",
     ("listener.guard_core", "sent"): "A1 I1 b1 i8 f8 f8 f8",
+    ("listener.seq_core", "init_slot"): "I2 A2 A1 I1 i8",
+    ("listener.seq_core", "push"): "I2 A2 A1 I1 I1 I1 A2 i8 i8 i8 f8",
+    ("listener.seq_core", "poll"): "I2 A2 A1 I1 I1 I1 A2 i8 f8",
+    ("listener.seq_core", "next_deadline"): "I2 A2 A1 i8",
+    ("listener.seq_core", "reopen"): "I2 A1 i8 i8",
+    ("listener.seq_core", "flush"): "I2 A2 A1 I1 I1 I1 i8",
+    ("listener.seq_core", "footprint"): "I2 A1 i8",
+    ("listener.seq_core", "table_push"): "I2 A2 A1 I1 I1 I1 A2 i8 i8 i8 i8 f8",
+    ("listener.seq_core", "table_next_deadline"): "I2 A2 A1 I1",
+    ("listener.seq_core", "table_poll"): "I2 A2 A1 I1 I1 I1 A2 f8",
+    ("listener.seq_core", "table_flush"): "I2 A2 A1 I1 I1 I1",
     ("sfa.bank", "run_segment"): "I1 A1 A2 i8 b1 A2 A3 A2 I2 A2 I2 I1 I1 A1 A2 I1 A1 I1 A1 I1 A1 "
                                  "I1 A1 A1 A1 A1 A2 I2 I1 i8",
     ("sfa.bank", "prune"): "I1 I1 A2 A2 I2 A2 I1 A1 A1 I1 A1",

@@ -44,6 +44,7 @@ from listener.config import (
 )
 from tools.capture_reader import CaptureStats, read_capture
 from tools.fast_decode import decode_bytes
+from tools.fast_ingest import unique_few
 from tools.fast_pcap import scan_capture
 from tools.fast_replay import try_fast_replay
 from tools.replay import ReplayOptions, replay_capture
@@ -696,3 +697,16 @@ def test_bad_files_fall_back_with_a_reason(sim, tmp_path):
     for path, words in ((tmp_path, "cannot map"), (tmp_path / "missing.pcap", "cannot stat")):
         result, info = try_fast_replay(path, sim["track"], ReplayOptions())
         assert result is None and words in info.reason
+
+
+@given(st.lists(st.integers(-(2**62), 2**62), max_size=40), st.integers(0, 2**32 - 1), st.integers(0, 300),
+       st.sampled_from([1, 3, 32]))  # fmt: skip
+def test_unique_few_is_np_unique(values, seed, n, most):
+    """The senders' key dedup of the ingest (a pass per distinct value) gives np.unique's values, first
+    indices and inverse, with few values and beyond ``most``."""
+    rng = np.random.default_rng(seed)
+    pool = np.asarray(values, dtype=np.int64)
+    key = pool[rng.integers(0, len(values), n)] if values else pool
+    want = np.unique(key, return_index=True, return_inverse=True)
+    got = unique_few(key, most)
+    assert all(np.array_equal(a, b) for a, b in zip(got, want, strict=True))

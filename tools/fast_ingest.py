@@ -32,7 +32,7 @@ from __future__ import annotations
 
 import math
 import socket
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -752,6 +752,31 @@ def record_capacity(data) -> int:
     return max(1, size // (RECORD_HEADER_BYTES + ETH_HEADER_BYTES + 20) + 1)
 
 
+def unique_few(key: np.ndarray, most: int = 32):
+    """``np.unique(key, return_index=True, return_inverse=True)`` of an int64 ``key`` with few distinct
+    values (a capture's senders): one pass over ``key`` per value instead of a sort; np.unique itself
+    beyond ``most`` values."""
+    n = key.shape[0]
+    inv = np.full(n, -1, dtype=np.int64)
+    vals: list[int] = []
+    firsts: list[int] = []
+    i = 0
+    while i < n:
+        if len(vals) == most:
+            return np.unique(key, return_index=True, return_inverse=True)
+        v = key[i]
+        inv[i:][key[i:] == v] = len(vals)  # (every earlier row has its value already)
+        vals.append(int(v))
+        firsts.append(i)
+        left = inv[i:] < 0
+        j = int(np.argmax(left))
+        i = i + j if left[j] else n
+    order = np.argsort(np.asarray(vals, dtype=np.int64), kind="stable")
+    rank = np.empty(order.size, dtype=np.int64)
+    rank[order] = np.arange(order.size)
+    return np.asarray(vals, dtype=np.int64)[order], np.asarray(firsts, dtype=np.int64)[order], rank[inv]
+
+
 def _be_int(d, at: np.ndarray, nbytes: int) -> np.ndarray:
     """The ``nbytes`` bytes at each offset ``at`` of ``d`` as one big-endian int64 (wrapping: a key)."""
     k = np.zeros(at.shape[0], dtype=np.int64)
@@ -787,6 +812,8 @@ class Ingested:
     s_ts: np.ndarray  #: sensor-set timestamp [s]
     s_time: np.ndarray  #: arrival [s]
     skipped_at: np.ndarray  #: (record number, F_*) of every skipped frame of the file
+    #: the last (rows, _pair_keys(rows)): the sender table and the sequence buffers ask for the same rows
+    _keys_memo: list = field(default_factory=list, compare=False, repr=False)
 
     @property
     def rows(self) -> int:
@@ -811,6 +838,15 @@ class Ingested:
         return inv, [(self.source(int(r)), int(self.row_code[r])) for r in rows[first].tolist()]
 
     def _pair_keys(self, rows: np.ndarray):
+        memo = self._keys_memo
+        if memo and memo[0].shape == rows.shape and np.array_equal(memo[0], rows):
+            return memo[1]
+        got = self._distinct_pairs(rows)
+        memo[:] = [rows.copy(), got]
+        return got
+
+    def _distinct_pairs(self, rows: np.ndarray):
+        """np.unique's (values, first indices, inverse) of the (address, port, SENSOR_TYPE) keys of rows."""
         d = self.data
         ip = self.row_ip[rows]
         v6 = self.row_ver[rows] == 6
@@ -818,7 +854,7 @@ class Ingested:
         port_type = (_be_int(d, o - 8, 2) << 8) | self.row_code[rows]
         if not v6.any():  # one int64 key: address, port, type (np.unique on rows is much slower)
             key1 = (_be_int(d, ip + 12, 4) << 24) | port_type
-            return np.unique(key1, return_index=True, return_inverse=True)
+            return unique_few(key1)
         key = np.empty((rows.size, 3), dtype=np.int64)  # the walk's stream key, with the type
         key[:, 0] = np.where(v6, _be_int(d, ip + 8, 8), 0)
         key[:, 1] = np.where(v6, _be_int(d, ip + 16, 8), _be_int(d, ip + 12, 4))

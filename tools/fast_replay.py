@@ -369,29 +369,31 @@ def _sequence(got, pipe, h: int, n: int, stopped: bool, per_type: bool):
     before = streams.stats
     rows = np.flatnonzero(got.row_code[h:n] >= 0) + h
     inv, sources = got.source_ids(rows)
-    keys = [stream_key(addr, stype, per_type) for addr, stype in sources]
+    number: dict = {}  # stream key -> its number (sources may share a stream)
+    kid_of = [number.setdefault(stream_key(addr, stype, per_type), len(number)) for addr, stype in sources]
+    kids = np.asarray(kid_of, dtype=np.int64)[inv] if rows.size else np.zeros(0, dtype=np.int64)
     d = got.data
     o = got.row_off[rows]
-    seqs = (d[o + 1].astype(np.int64) | (d[o + 2].astype(np.int64) << 8)).tolist()
-    times = got.row_t[rows].tolist()
-    key_of = [keys[i] for i in inv.tolist()]
-    stop_row = n - 1 if stopped else None
-    rel, rel_t, rel_b, stop_released = streams.run(key_of, seqs, rows.tolist(), times, stop_row)
-    batch = rel_b[-1] + 1 if rel_b else 0
+    seqs = d[o + 1].astype(np.int64) | (d[o + 2].astype(np.int64) << 8)
+    times = got.row_t[rows]
+    stop = rows.size - 1 if stopped and rows.size and rows[-1] == n - 1 else -1
+    if streams.next_deadline() is not None:
+        return "the sequence buffers hold datagrams at the hand-over (exact replay)"
+    rel_a, rel_t, rel_b, stop_released = streams.run_indexed(list(number), kids, seqs, times, rows, stop)
+    batch = int(rel_b[-1]) + 1 if rel_b.size else 0
     if stop_released is False:
         return "a STOP held by a sequence buffer (exact replay)"
     last_t = float(got.row_t[n - 1])  # the STOP's arrival (the last row), or the end's
-    out = streams.flush()  # the STOP's, or the end's (Pipeline.flush)
-    rel.extend(out)
-    rel_t.extend([last_t] * len(out))
-    rel_b.extend([batch] * len(out))
+    out = np.asarray(streams.flush(), dtype=np.int64)  # the STOP's, or the end's (Pipeline.flush)
+    rel_a = np.concatenate([rel_a, out])
+    rel_t = np.concatenate([rel_t, np.full(out.size, last_t)])
+    rel_b = np.concatenate([rel_b, np.full(out.size, batch, dtype=np.int64)])
     after = streams.stats
     if after.evictions != before.evictions:
         return "a sequence-buffer stream evicted (more senders than input.max_streams)"
     for name in _SEQ_NOT_FOLLOWED:
         if getattr(after.totals, name) != getattr(before.totals, name):
             return f"sequence buffers: {name.replace('_', ' ')} (exact replay)"
-    rel_a = np.array(rel, dtype=np.int64)
     pos = np.arange(rel_a.size)
     meas_of = np.full(n, -1, dtype=np.int64)
     meas_of[got.m_row] = np.arange(got.m_row.size)
@@ -400,9 +402,7 @@ def _sequence(got, pipe, h: int, n: int, stopped: bool, per_type: bool):
     m = meas_of[rel_a]
     s = strobe_of[rel_a]
     ism, iss = m >= 0, s >= 0
-    t_a = np.array(rel_t, dtype=np.float64)
-    b_a = np.array(rel_b, dtype=np.int64)
-    return _Sequenced(m[ism], pos[ism], t_a[ism], b_a[ism], s[iss], pos[iss], b_a[iss])
+    return _Sequenced(m[ism], pos[ism], rel_t[ism], rel_b[ism], s[iss], pos[iss], rel_b[iss])
 
 
 def _senders_reason(got, pipe, h: int) -> str:
@@ -592,9 +592,8 @@ def _replay_ingested(got, track, options, ingest_s: float = 0.0):
             return None, _info(False, seq, h)
         undated_rel = np.isnan(got.t_s[seq.m_idx])
         n_by_strobe = int(np.count_nonzero(undated_rel))
-        mrows, m_time, kind, t_s, vals = (
-            a[seq.m_idx] for a in (got.m_row, got.m_time, got.kind, got.t_s, got.vals)
-        )
+        mrows, m_time, kind, t_s = (a[seq.m_idx] for a in (got.m_row, got.m_time, got.kind, got.t_s))
+        vals = None  # (taken once, in the filter's order, after the GNSS projection below)
         m_pos, m_now = seq.m_pos, seq.m_now
         s_pos, s_ts, s_time = seq.s_pos, got.s_ts[seq.s_idx], got.s_time[seq.s_idx]
         n_strobes = int(seq.s_idx.size)
@@ -628,8 +627,8 @@ def _replay_ingested(got, track, options, ingest_s: float = 0.0):
         order = seq.merge_order(t_s)
         if np.any(order != np.arange(order.size)):
             seq = dataclasses.replace(seq, m_idx=seq.m_idx[order])
-            mrows, m_time, kind, t_s, vals, fresh_min, m_now, future = (
-                a[order] for a in (mrows, m_time, kind, t_s, vals, fresh_min, m_now, future)
+            mrows, m_time, kind, t_s, fresh_min, m_now, future = (
+                a[order] for a in (mrows, m_time, kind, t_s, fresh_min, m_now, future)
             )
     lap("clock")
 
@@ -640,8 +639,8 @@ def _replay_ingested(got, track, options, ingest_s: float = 0.0):
         gm = got.g_meas[gq]
         got.vals[gm, 0] = np.asarray(e, dtype=np.float64)
         got.vals[gm, 1] = np.asarray(nn, dtype=np.float64)
-        if seq is not None:  # (vals was taken in release order before the projection)
-            vals = got.vals[seq.m_idx]
+    if seq is not None:  # the values in the filter's order, with the projected GNSS fixes
+        vals = got.vals[seq.m_idx]
     if n_future:  # Pipeline._date: epoch_future rejection
         keep = ~future
         mrows, m_time, kind, t_s, vals, fresh_min, m_now = (
