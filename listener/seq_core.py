@@ -267,27 +267,37 @@ def _alert(si, tb, al, s, kind, now, ext, missing, why):
 
 
 @njit(cache=True, _nrt=False)
-def _p_find(si, k, s, ext):
-    base = int(k[K_OFF_P])
-    for j in range(si[s, C_PENDING]):
-        if si[s, base + P_W * j + P_EXT] == ext:
+def _rec_find(si, s, base, n, w, f_ext, ext):
+    """Index of the record with ``ext`` among the n records of width w at column ``base``, or -1."""
+    for j in range(n):
+        if si[s, base + w * j + f_ext] == ext:
             return j
     return -1
 
 
 @njit(cache=True, _nrt=False)
+def _rec_remove(si, sf, s, base, fb, w, c_count, f_id, j):
+    """Remove record j of the table at column ``base`` (float column ``fb``, count in ``c_count``): the
+    last one takes its place; returns its id."""
+    n = si[s, c_count] - 1
+    iid = si[s, base + w * j + f_id]
+    if j != n:
+        for f in range(w):
+            si[s, base + w * j + f] = si[s, base + w * n + f]
+        sf[s, fb + j] = sf[s, fb + n]
+    si[s, c_count] = n
+    return iid
+
+
+@njit(cache=True, _nrt=False)
+def _p_find(si, k, s, ext):
+    return _rec_find(si, s, int(k[K_OFF_P]), si[s, C_PENDING], P_W, P_EXT, ext)
+
+
+@njit(cache=True, _nrt=False)
 def _p_remove(si, sf, k, s, j):
     """Remove held record j (the last one takes its place); returns its id."""
-    base = int(k[K_OFF_P])
-    fb = int(k[K_FOFF_P])
-    n = si[s, C_PENDING] - 1
-    iid = si[s, base + P_W * j + P_ID]
-    if j != n:
-        for f in range(P_W):
-            si[s, base + P_W * j + f] = si[s, base + P_W * n + f]
-        sf[s, fb + j] = sf[s, fb + n]
-    si[s, C_PENDING] = n
-    return iid
+    return _rec_remove(si, sf, s, int(k[K_OFF_P]), int(k[K_FOFF_P]), P_W, C_PENDING, P_ID, j)
 
 
 @njit(cache=True, _nrt=False)
@@ -344,26 +354,13 @@ def _p_front(si, k, s):
 
 @njit(cache=True, _nrt=False)
 def _u_find(si, k, s, ext):
-    base = int(k[K_OFF_U])
-    for j in range(si[s, C_JUMP_HELD]):
-        if si[s, base + U_W * j + U_EXT] == ext:
-            return j
-    return -1
+    return _rec_find(si, s, int(k[K_OFF_U]), si[s, C_JUMP_HELD], U_W, U_EXT, ext)
 
 
 @njit(cache=True, _nrt=False)
 def _u_remove(si, sf, k, s, j):
     """Remove suspect record j (the last one takes its place); returns its id."""
-    base = int(k[K_OFF_U])
-    fb = int(k[K_FOFF_U])
-    n = si[s, C_JUMP_HELD] - 1
-    iid = si[s, base + U_W * j + U_ID]
-    if j != n:
-        for f in range(U_W):
-            si[s, base + U_W * j + f] = si[s, base + U_W * n + f]
-        sf[s, fb + j] = sf[s, fb + n]
-    si[s, C_JUMP_HELD] = n
-    return iid
+    return _rec_remove(si, sf, s, int(k[K_OFF_U]), int(k[K_FOFF_U]), U_W, C_JUMP_HELD, U_ID, j)
 
 
 @njit(cache=True, _nrt=False)

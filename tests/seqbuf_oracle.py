@@ -1,56 +1,7 @@
 """Test oracle: the sequence buffers as they were written in Python before the policy moved into
 compiled kernels (listener/seq_core.py); not shipped. tests/test_seqbuf_oracle.py compares the
-listener's classes with these on random schedules. The original module docstring follows.
-
-Per-stream sequence buffer (sans-I/O): reorder within a hold time, drop duplicates, report losses.
-
-One :class:`SequenceBuffer` per stream (a sender's socket, optionally per SENSOR_TYPE). Sequence
-numbers are 16-bit and compared with RFC 1982 serial arithmetic; internally each number is unwrapped
-to an unbounded integer (``ext``), so a stream crossing 65535 -> 0 is seamless. Time is always an
-argument (``now``, seconds of any monotonic clock the caller uses); nothing here reads a clock.
-
-Policy (docs/protocol.md, "Sequence buffers"):
-
-* The next expected item goes out at once, with whatever pending items it makes contiguous.
-* An item ahead of a gap waits. When the item that has waited longest has waited ``hold_time_s``,
-  the gaps below it are declared lost and everything up to it is released in order.
-* Duplicates (already released, or already pending) are dropped and counted. Late items (behind
-  the release point by at most ``max_backward`` and declared lost, or older than the stream start)
-  are dropped and counted.
-* A number further than ``max_forward`` ahead or ``max_backward`` behind is a restart candidate: as
-  RTP does (RFC 3550 A.1), a new sequence is accepted after ``probation`` consecutive numbers; the
-  probation items are held, and released after the resynchronisation, so no valid data is lost.
-* A forward jump is not trusted at once (issue 20: one forged datagram with SEQ + 100 must not turn
-  the next hundred legitimate ones into "late"). When an item ahead of a gap has waited
-  ``hold_time_s`` it is released (and the gap declared lost) only if
-
-  - it is *confirmed*: ``probation - 1`` more items of the stream are held within ``trusted_gap``
-    above it (the stream really continues from there: RTP's probation), or
-  - nothing arrived in order (or late) since it came, and the silence before it explains the gap: at
-    least 3/4 of (missing + 1) of the stream's periods (an average over consecutive in-order arrivals)
-    passed since the last in-order or late arrival (a loss burst, an outage; a forgery right behind a
-    real datagram would need 75 periods of silence for SEQ + 100), or
-  - the gap is small (at most ``trusted_gap`` numbers missing), nothing was released in order since
-    it arrived, and the stream's budget of such unconfirmed skips allows it (a token bucket:
-    ``gap_budget`` skips, one more every ``gap_refill_s``). This releases a STOP or any last datagram
-    after a small gap by the hold timer.
-
-  Otherwise it becomes a *suspect* (``jump_held``), out of the release path: in-order items go on
-  being released below it. A later item confirms it (it is then released at once; for a large jump
-  only while the stream stayed silent below it, so two forgeries a second apart on a 1 Hz stream do
-  not confirm each other), or after ``jump_timeout_s`` it is released if the stream stayed silent
-  below it (a legitimate last datagram after a loss) and dropped (``jump_drops``) if the stream went
-  on below it (the forged case). When the stream's in-order numbers reach it, the next datagram
-  decides: its own number (the suspect was a forgery: dropped) or a higher one (the suspect was the
-  real, reordered item: released first); nothing for ``jump_timeout_s``: released. ``flush`` releases
-  the suspects the stream stayed silent below and drops the others. ``alerts`` (a list the owner
-  passes) receives one record per jump held, dropped or rate-limited, for the pipeline's warnings.
-* :meth:`SequenceBuffer.reopen` gives back the number of an item the caller rejected for its content
-  after the release (a future epoch...): a later item with that number is accepted, not a duplicate.
-* Memory is bounded whatever arrives: at most ``max_pending`` held items (on overflow the lowest
-  gap is declared lost and released early), ``probation`` probation items, ``max_suspects`` suspects,
-  ``max_backward`` loss records, ``max_reopened`` given-back numbers. A :class:`StreamTable` bounds
-  the number of streams (least recently used evicted).
+listener's classes with these on random schedules. The policy is the one listener/seqbuf.py's module
+docstring states.
 """
 
 from __future__ import annotations
@@ -58,10 +9,10 @@ from __future__ import annotations
 import math
 from collections import OrderedDict, deque
 from collections.abc import Hashable
-from dataclasses import dataclass, fields
 from typing import Generic, TypeVar
 
 from listener.errors import ConfigError, SequenceError
+from listener.seqbuf import SeqBufferConfig, SeqStats, StreamTableStats, stream_key
 from listener.serial import SERIAL_HALF, SERIAL_MASK, SERIAL_MOD
 
 __all__ = ["SeqBufferConfig", "SeqStats", "SequenceBuffer", "StreamTable", "StreamTableStats", "stream_key"]
@@ -70,89 +21,6 @@ T = TypeVar("T")
 _PERIOD_MAX_S = 10.0  #: inter-arrivals longer than this do not enter a stream's period estimate [s]
 _RATE_SLACK = 0.75  #: a jump is explained by the silence before it if that lasted this share of its periods
 K = TypeVar("K", bound=Hashable)
-
-
-@dataclass(frozen=True)
-class SeqBufferConfig:
-    """Configuration of one stream's sequence buffer."""
-
-    hold_time_s: float = 0.03  #: longest wait of an item behind a gap before the gap is declared lost [s]
-    max_pending: int = 256  #: most items held at once [items]; overflow releases the lowest gap early
-    max_forward: int = 3000  #: a jump ahead larger than this is a restart candidate [sequence numbers]
-    max_backward: int = 100  #: further behind than this is a restart candidate, not late [sequence numbers]
-    probation: int = 2  #: consecutive numbers that accept a restarted sequence (RFC 3550 MIN_SEQUENTIAL)
-    probation_timeout_s: float = 5.0  #: a probation run with no follower for this long is dropped [s]
-    startup_hold: bool = True  #: hold the first items of a stream hold_time_s to find its true start
-    #: most numbers missing below an item that the hold timer skips without confirmation [sequence numbers]
-    trusted_gap: int = 3
-    gap_budget: int = 3  #: unconfirmed skips a stream may make in a burst [count]
-    gap_refill_s: float = 10.0  #: one more unconfirmed skip allowed per this long [s]
-    #: how long an unconfirmed jump (a suspect) waits for a confirming item; >= the slowest stream's
-    #: period (GNSS and STROBE: 1 s), so the legitimate stream's next item can show it was forged [s]
-    jump_timeout_s: float = 1.5
-    max_suspects: int = 8  #: suspects held per stream at most (the oldest dropped beyond) [items]
-    max_reopened: int = 64  #: numbers given back by reopen() kept per stream at most [count]
-
-    def __post_init__(self) -> None:
-        def need(ok: bool, what: str) -> None:
-            if not ok:
-                raise ConfigError(f"SeqBufferConfig: {what}")
-
-        for f in fields(self):
-            value = getattr(self, f.name)
-            if f.name == "startup_hold":
-                need(type(value) is bool, f"startup_hold must be a bool, got {value!r}")
-            elif f.name.endswith("_s"):
-                ok = isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
-                need(ok and value >= 0, f"{f.name} must be a finite number >= 0 [s], got {value!r}")
-            else:
-                need(type(value) is int, f"{f.name} must be an int, got {value!r}")
-        need(self.max_pending >= 1, f"max_pending must be >= 1, got {self.max_pending}")
-        need(1 <= self.max_forward < SERIAL_HALF, f"max_forward must be in 1..32767, got {self.max_forward}")
-        need(0 <= self.max_backward < SERIAL_HALF, f"max_backward must be in 0..32767: {self.max_backward}")
-        need(
-            1 <= self.probation <= self.max_pending,
-            f"probation must be in 1..max_pending ({self.max_pending}), got {self.probation}",
-        )
-        need(self.probation_timeout_s > 0, "probation_timeout_s must be > 0")
-        need(0 <= self.trusted_gap < SERIAL_HALF, f"trusted_gap must be in 0..32767, got {self.trusted_gap}")
-        need(self.gap_budget >= 0, f"gap_budget must be >= 0, got {self.gap_budget}")
-        need(self.gap_refill_s > 0, "gap_refill_s must be > 0")
-        need(self.jump_timeout_s > 0, "jump_timeout_s must be > 0")
-        need(self.max_suspects >= 1, f"max_suspects must be >= 1, got {self.max_suspects}")
-        need(self.max_reopened >= 0, f"max_reopened must be >= 0, got {self.max_reopened}")
-
-
-@dataclass(frozen=True, slots=True)
-class SeqStats:
-    """Counters of one stream (or a sum of streams), a snapshot.
-
-    Every received item ends in exactly one of: ``in_order``, ``reordered`` (both "accepted"),
-    ``duplicates``, ``late``, ``probation_drops``, ``jump_drops``, or is still ``probation_held`` or
-    ``jump_held``. Every accepted item is released exactly once: ``in_order + reordered == released +
-    pending``. (A suspect is not counted accepted while it is held; released, it is.)
-    """
-
-    received: int = 0  #: push() calls
-    released: int = 0  #: items handed back (push, poll, flush)
-    in_order: int = 0  #: accepted, arrived after every lower number (possibly after a gap)
-    reordered: int = 0  #: accepted, arrived after a higher number of the same sequence
-    duplicates: int = 0  #: dropped: that number was already released, pending, or in probation
-    lost: int = 0  #: sequence numbers skipped (declared lost) when releasing past a gap
-    late: int = 0  #: dropped: arrived after its number was declared lost, or older than the stream start
-    resyncs: int = 0  #: restarts accepted after probation
-    overflow: int = 0  #: early releases forced by max_pending
-    probation_drops: int = 0  #: probation items dropped (run broken, timed out, or stream flushed)
-    pending: int = 0  #: items held now (gauge)
-    probation_held: int = 0  #: probation items held now (gauge)
-    jumps_held: int = 0  #: forward jumps not trusted at the hold timer (items that became suspects)
-    jump_drops: int = 0  #: suspects dropped (the stream went on below them, or was flushed)
-    gap_limited: int = 0  #: small gaps the budget did not let the hold timer skip (became suspects)
-    reopened: int = 0  #: numbers given back (content rejections) and then accepted again
-    jump_held: int = 0  #: suspects held now (gauge)
-
-    def __add__(self, other: SeqStats) -> SeqStats:
-        return SeqStats(*(getattr(self, f.name) + getattr(other, f.name) for f in fields(SeqStats)))
 
 
 class SequenceBuffer(Generic[T]):
@@ -667,20 +535,6 @@ class SequenceBuffer(Generic[T]):
             self._jump_drops += len(self._suspects)
             self._suspects.clear()
         self._resyncs += 1
-
-
-def stream_key(address: Hashable, sensor_type: int, per_type: bool = False) -> Hashable:
-    """The key of a datagram's stream: its sender address, or (address, SENSOR_TYPE) when ``per_type``."""
-    return (address, int(sensor_type)) if per_type else address
-
-
-@dataclass(frozen=True, slots=True)
-class StreamTableStats:
-    """Counters of a :class:`StreamTable`: live streams, evictions, and the sum over all streams ever seen."""
-
-    streams: int
-    evictions: int
-    totals: SeqStats
 
 
 class StreamTable(Generic[K, T]):

@@ -26,22 +26,28 @@ def _p95_and_scale(track, cfg, meas, grid, te, ts, acc):
     return float(np.percentile(err, 95)), float(f.hypotheses()[0][2][L.A_GY_LAM])
 
 
+def _family_run(family: str, seed: int):
+    """One family and seed of the generalisation benchmark: (scenario, measurements, grid, truth epochs,
+    truth arc lengths, the accuracy benchmark module)."""
+    from interface_modules.offline import generate as sim_generate
+    from tools.bench_generalisation import family_by_name, family_scenario
+    from tools.bench_replay import load_benchmark_module
+
+    acc = load_benchmark_module("bench_filter_accuracy")
+    sc, _ = family_scenario(family_by_name(family), seed, 300.0)
+    run = sim_generate(sc, seed)
+    te, ts = run.truth["epoch"], run.truth["arc_length"]
+    return sc, acc.to_measurements(run.messages()), np.arange(te[0] + 0.5, te[-1], 0.5), te, ts, acc
+
+
 @pytest.fixture(scope="module")
 def outage_run():
     """The generalisation benchmark's long-outage family, seed 0: the Jena tram on its as-built path
     (lateral offsets down to 40 m wavelength: curvature errors of a few 1e-3 1/m against the database's),
     a 700 m GNSS outage from 1100 m, a standstill at 1386 m inside it."""
-    from interface_modules.offline import generate as sim_generate
     from interface_modules.tracks import database_path
-    from tools.bench_generalisation import family_by_name, family_scenario
-    from tools.bench_replay import load_benchmark_module
 
-    acc = load_benchmark_module("bench_filter_accuracy")
-    sc, _ = family_scenario(family_by_name("long-outage"), 0, 300.0)
-    run = sim_generate(sc, 0)
-    meas = acc.to_measurements(run.messages())
-    te, ts = run.truth["epoch"], run.truth["arc_length"]
-    grid = np.arange(te[0] + 0.5, te[-1], 0.5)
+    sc, meas, grid, te, ts, acc = _family_run("long-outage", 0)
     cfg = datasheet_config_for(sc.imu.preset, sc.odometer.preset, sc.gps.preset)
     with TrackDatabase.open(database_path(sc)) as track:
         yield track, cfg, meas, grid, te, ts, acc
@@ -89,17 +95,9 @@ def test_a_reversal_needs_evidence_beyond_its_prior(prior, diverges):
     still drifted 5.6 log units towards the mirrored hypothesis spawned at the standstill, past the
     switch ratio. With the reversal prior (the default, 1:100) it stays behind; without, the estimate
     runs backwards."""
-    from interface_modules.offline import generate as sim_generate
     from interface_modules.tracks import database_path
-    from tools.bench_generalisation import family_by_name, family_scenario
-    from tools.bench_replay import load_benchmark_module
 
-    acc = load_benchmark_module("bench_filter_accuracy")
-    sc, _ = family_scenario(family_by_name("long-outage"), 7, 300.0)
-    run = sim_generate(sc, 7)
-    meas = acc.to_measurements(run.messages())
-    te, ts = run.truth["epoch"], run.truth["arc_length"]
-    grid = np.arange(te[0] + 0.5, te[-1], 0.5)
+    sc, meas, grid, te, ts, acc = _family_run("long-outage", 7)
     cfg = datasheet_config_for(sc.imu.preset, sc.odometer.preset, sc.gps.preset).replace(
         use_gyro=True, reversal_log_prior=prior)
     with TrackDatabase.open(database_path(sc)) as track:
