@@ -1137,14 +1137,12 @@ def step_imu(x, P, aux, cnt, mem, cfg, ts, tg, tk, t, fx, fy, fz, wx, wy, wz):
             + (x[V] * (cfg[K_CURV_REG_M] * dk_ds)) ** 2
         # the error is correlated over K_CURV_CORR_M metres: the n_c windows inside that length share
         # one draw of it, so each counts it n_c times over (n_c = L / distance per window, >= 1)
+        aux[A_GY_RC0] += rc  # before the inflation: the variance the residual carries
         if cfg[K_CURV_CORR_M] > 0.0:
             dw = abs(x[V]) * cfg[K_GYRO_AVG_N] * min(max(dt_imu, 1e-3), cfg[K_GYRO_AVG_MAX_S])
             nc = cfg[K_CURV_CORR_M] / dw if dw > 0.0 else 1.0
-            aux[A_GY_RC0] += rc
             if nc > 1.0:
                 rc *= nc
-        else:
-            aux[A_GY_RC0] += rc
         aux[A_GY_RC] += rc  # (v sigma_k)^2 n_c: does not average out
         if aux[A_GY_N] >= cfg[K_GYRO_AVG_N]:
             gyro_window_update(x, P, aux, cnt, cfg)
