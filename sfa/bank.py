@@ -39,6 +39,7 @@ import numpy as np
 from sfa import gnss_noise
 from sfa import kernels as K
 from sfa import layout as L
+from sfa import separation as SEP
 from sfa.engine import njit  # numba.njit on the JIT; exported by the compiled engine (sfa.engine_build)
 
 # rows of IDX (int64[NIDX, cap]), per slot
@@ -318,14 +319,17 @@ def emit(i, X, PP, AUX, IDX, order, ns, cfg, LID, fresh_min, last, m_time, e_f, 
 
 @njit(cache=True, _nrt=False, error_model="numpy")
 def run_segment(kind, t, vals, i0, stop_jumps, X, PP, AUX, CNT, MEM, IDX, order, ns, cfg, G, LOFF, LLEN, LID,
-                JS, work_i, work_f, u_out, u_nis, fresh_min, last, m_time, e_f, e_i, ost, seq0):
+                JS, work_i, work_f, SX, SPP, SAUX, SCNT, SMEM, SCFG, SS, u_out, u_nis, fresh_min, last,
+                m_time, e_f, e_i, ost, seq0):
     """Step measurements i0, i0 + 1, ... of (kind, t, vals) (``sfa.batch.Packed``'s layout) with the
     hypotheses ``order[:ns[0]]``, reported ``order[ns[1]]``, as ``TrackFilter.process`` defines it.
 
     Per measurement i: its outcome ``u_out[i]`` and NIS ``u_nis[i]`` (NaN for IMU), the reported
     hypothesis's; then, when ``e_f`` has columns, the output rule (:func:`emit`). ``work_i`` (int64) and
     ``work_f`` (float64) are scratch of the bank's capacity (the loop is compiled without numba's
-    allocator, ``_nrt=False``: it allocates nothing).
+    allocator, ``_nrt=False``: it allocates nothing). ``SX .. SS`` are the solution-separation
+    sub-filters (``sfa.separation``), stepped after the hypotheses; while they exclude GNSS no
+    hypothesis is given a fix.
 
     Returns (i, why): DONE with i = n; STOP_BEFORE with i the first measurement not processed (a kind
     other than IMU, odometer, GNSS, or with ``stop_jumps`` one further ahead of the state than
@@ -357,11 +361,18 @@ def run_segment(kind, t, vals, i0, stop_jumps, X, PP, AUX, CNT, MEM, IDX, order,
                     AUX[order[j], q] = AUX[order[rep], q]
         code = K.O_INVALID
         accepted = False
+        # solution separation's GNSS exclusion (one decision for the bank, kept in every hypothesis's
+        # aux): a valid fix goes to no hypothesis
+        skip = k == 3 and SEP.gnss_excluded(AUX[order[rep]], ti) and v[3] != 0.0 \
+            and not K.gps_invalid(ti, v[0], v[1], v[2])
         for j in range(nh):
             h = order[j]
             a = LOFF[IDX[I_LINE, h]]
             b = LOFF[IDX[I_LINE, h] + 1]
-            if k == 1:
+            if skip:
+                CNT[h, L.C_SEP_EXCLUDED] += 1
+                c = K.O_HELD_OFF
+            elif k == 1:
                 c = K.step_imu(X[h], PP[h], AUX[h], CNT[h], MEM[h], cfg, G[G_S, a:b], G[G_GRADE, a:b],
                                G[G_CURV, a:b], ti, v[0], v[1], v[2], v[3], v[4], v[5])
             elif k == 2:
@@ -399,6 +410,12 @@ def run_segment(kind, t, vals, i0, stop_jumps, X, PP, AUX, CNT, MEM, IDX, order,
         if k == 2 and cfg[L.K_REVERSAL] != 0.0 and AUX[order[ns[1]], L.A_STILL] != 0.0:
             if spawn_reversals(order, ns, X, PP, AUX, CNT, MEM, IDX, cfg):
                 prune(order, ns, X, AUX, IDX, G, LOFF, LLEN, cfg, work_i, work_f)
+        r = order[ns[1]]
+        lr = IDX[I_LINE, r]
+        a = LOFF[lr]
+        b = LOFF[lr + 1]
+        SEP.advance(k, ti, v, X, PP, AUX, CNT, MEM, lr, order, ns, cfg, G[G_S, a:b], G[G_E, a:b], G[G_N, a:b],
+                    G[G_GRADE, a:b], G[G_CURV, a:b], SX, SPP, SAUX, SCNT, SMEM, SCFG, SS)
         u_nis[i] = nis
         u_out[i] = code
         if k == 3 or (k == 2 and code == K.O_ACCEPTED):
@@ -522,6 +539,13 @@ class HypothesisBank:
         self.IDX, self.order = idx, order
         self.work_i = np.zeros(cap, dtype=np.int64)
         self.work_f = np.zeros(cap)
+        if old is None:  # the solution-separation sub-filters (sfa.separation): a fixed number
+            n = SEP.NSUB
+            self.SX, self.SPP = np.zeros((n, L.NX)), np.zeros((n, L.NX, L.NX))
+            self.SAUX = np.zeros((n, L.NAUX))
+            self.SCNT, self.SMEM = np.zeros((n, L.NCNT), dtype=np.int64), np.zeros((n, L.NMEM))
+            self.SS = np.zeros(SEP.NSS)
+            self._scfg: tuple = (None, None)
 
     @property
     def cap(self) -> int:
@@ -641,9 +665,16 @@ class HypothesisBank:
         if a is None or a[8] is not cfg:
             ln = self.lines
             a = (self.X, self.PP, self.AUX, self.CNT, self.MEM, self.IDX, self.order, self.ns, cfg, ln.G,
-                 ln.OFF, ln.LEN, ln.ID, self.JS, self.work_i, self.work_f)
+                 ln.OFF, ln.LEN, ln.ID, self.JS, self.work_i, self.work_f, self.SX, self.SPP, self.SAUX,
+                 self.SCNT, self.SMEM, self.sub_configs(cfg), self.SS)
             self._args = a
         return a
+
+    def sub_configs(self, cfg: np.ndarray) -> np.ndarray:
+        """The sub-filters' configuration vectors for ``cfg`` (sfa.separation.sub_configs), kept."""
+        if self._scfg[0] is not cfg:
+            self._scfg = (cfg, SEP.sub_configs(cfg))
+        return self._scfg[1]
 
     def run(self, kind, t, vals, i0: int, stop_jumps: bool, cfg: np.ndarray, out: RunOutput):
         """:func:`run_segment` on this bank; returns (i, why). The live slots never exceed half the

@@ -166,6 +166,17 @@ class FilterConfig:
     #: gyro-vs-curvature evidence alone in a GNSS outage gave the wrong sense 5.6 (docs/filter.md)
     reversal_log_prior: float = 4.6
     loglik_nis_cap: float = 50.0  #: NIS cap in the hypothesis likelihood (robust to outliers) [NIS]
+    # --- solution separation (sfa.separation; docs/filter.md, "Solution separation")
+    #: life of each sub-filter (one aid left out) between re-anchorings to the reported hypothesis; two
+    #: per aid, half a window apart (0: no sub-filters, no separation test) [s]
+    separation_window_s: float = 0.0
+    #: probability that a fault-free separation passes its chi-square test (1 dof) [-]
+    separation_probability: float = 0.99999
+    separation_hold_s: float = 30.0  #: how long a detected aid stays excluded and the interval widened [s]
+    #: added in quadrature to the separation's sigma: what a fault-free filter and sub-filter differ by
+    #: beyond their covariances (linearisation, the reset gyro window and rewind memory, rounding; with
+    #: the 4.4-sigma gate, no separation below about 0.44 m is a detection) [m]
+    separation_floor_m: float = 0.1
 
     def __post_init__(self) -> None:
         for f in fields(self):
@@ -179,7 +190,7 @@ class FilterConfig:
             if f.name != "min_variance" and value < 0:
                 raise FilterConfigError(f"{f.name} must be >= 0, got {value!r}")
         for name in ("gate_prob_odo", "gate_prob_gps", "gate_prob_gyro", "gate_prob_zupt", "confidence",
-                     "fault_confidence"):
+                     "fault_confidence", "separation_probability"):
             p = getattr(self, name)
             if not 0.0 < p < 1.0:
                 raise FilterConfigError(f"{name} must be a probability in (0, 1), got {p!r}")
@@ -315,4 +326,8 @@ class FilterConfig:
         c[L.K_SLIP_BA_SIGMA] = self.slip_accel_bias_sigma_mps2
         c[L.K_IMU_FAULT_HOLD] = self.imu_fault_hold_s
         c[L.K_SLIP_ARB_LLR] = self.slip_arbitration_log_ratio
+        c[L.K_SEP_WINDOW] = self.separation_window_s
+        c[L.K_SEP_GATE] = self.gate_nis(self.separation_probability, 1)
+        c[L.K_SEP_HOLD] = self.separation_hold_s
+        c[L.K_SEP_FLOOR_VAR] = self.separation_floor_m ** 2
         return c

@@ -53,11 +53,11 @@ from pathlib import Path
 #: compile time (layout constants are frozen into the machine code), and the builder's entry points;
 #: kernels of another package by their path from here (the listener's STROBE clock, output guard and
 #: sequence buffers)
-SOURCES = ("kernels.py", "gnss_noise.py", "layout.py", "bank.py", "engine_build.py",
+SOURCES = ("kernels.py", "gnss_noise.py", "layout.py", "separation.py", "bank.py", "engine_build.py",
            "../listener/clock_core.py", "../listener/guard_core.py", "../listener/seq_core.py")
 #: the modules whose ``@njit`` functions the extension carries
-MODULES = ("sfa.kernels", "sfa.gnss_noise", "sfa.bank", "listener.clock_core", "listener.guard_core",
-           "listener.seq_core")
+MODULES = ("sfa.kernels", "sfa.gnss_noise", "sfa.separation", "sfa.bank", "listener.clock_core",
+           "listener.guard_core", "listener.seq_core")
 PREFIX = "_engine_"  #: extension module name: PREFIX + engine_key()
 ENV_MODE = "SFA_ENGINE"
 ENV_DIR = "SFA_ENGINE_DIR"

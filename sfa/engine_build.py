@@ -58,7 +58,7 @@ ENTRY_POINTS: dict[tuple[str, str], str] = {
     ("listener.seq_core", "table_poll"): "I2 A2 A1 I1 I1 I1 A2 f8",
     ("listener.seq_core", "table_flush"): "I2 A2 A1 I1 I1 I1",
     ("sfa.bank", "run_segment"): "I1 A1 A2 i8 b1 A2 A3 A2 I2 A2 I2 I1 I1 A1 A2 I1 A1 I1 A1 I1 A1 "
-                                 "I1 A1 A1 A1 A1 A2 I2 I1 i8",
+                                 "A2 A3 A2 I2 A2 A2 A1 I1 A1 A1 A1 A1 A2 I2 I1 i8",
     ("sfa.bank", "prune"): "I1 I1 A2 A2 I2 A2 I1 A1 A1 I1 A1",
     ("sfa.bank", "emit"): "i8 A2 A3 A2 I2 I1 I1 A1 I1 A1 A1 A1 A2 I2 I1 i8",
     ("sfa.bank", "same_track"): "i8 i8 A2 A2 I2 A2 I1 f8",

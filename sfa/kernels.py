@@ -84,6 +84,9 @@ from sfa.layout import (
     A_SLIP_S_ODO,
     A_SLIP_T0,
     A_SLIP_V_ODO,
+    A_SS_DS,
+    A_SS_MASK,
+    A_SS_UNTIL,
     A_STEP_FLAG,
     A_STILL,
     A_T_FIRST_GPS_REJ,
@@ -221,6 +224,8 @@ from sfa.layout import (
     R_NO_MOTION_SENSOR,
     R_NOT_INIT,
     R_ODO_TIMEOUT,
+    R_SEP_DETECTED,
+    R_SEP_GNSS,
     R_SIGMA_HIGH,
     R_SIGMA_LOST,
     R_SLIP,
@@ -829,8 +834,19 @@ def status_of(x, P, aux, cfg, t):
         bits |= R_IMU_STUCK
     if t - aux[A_IMU_FAULT_T] <= cfg[K_IMU_FAULT_HOLD]:
         bits |= R_IMU_FAULT
+    separated = aux[A_SS_MASK] != 0.0 and t < aux[A_SS_UNTIL]
+    if separated:  # a solution-separation detection (sfa.separation)
+        m = int(aux[A_SS_MASK])  # (bits of sfa.separation: EXCLUDED_GNSS 1, DETECTED 2)
+        if m & 1:
+            bits |= R_SEP_GNSS
+        if m & 2:
+            bits |= R_SEP_DETECTED
     var = pending_var_s(P, aux)
     sigma = math.sqrt(var) if var > 0.0 else 0.0
+    if separated:
+        # the interval also covers the separated sub-filter, or where the estimate was before it was
+        # re-anchored to the sub-filter without GNSS (half-width z sigma + |A_SS_DS|), as for a slip below
+        sigma += abs(aux[A_SS_DS]) / cfg[K_Z_INTERVAL]
     if aux[A_SLIP] != 0.0 and aux[A_SLIP_LLR] > -cfg[K_SLIP_ARB_LLR]:
         # slip or accelerometer fault not yet told apart by GNSS: the interval also covers the
         # odometer's position, estimate + A_SLIP_DS (half-width z sigma + |A_SLIP_DS|)
@@ -1191,6 +1207,14 @@ def gyro_window_update(x, P, aux, cnt, cfg):
 
 
 # ============================================================== odometer (+ slip detection, ZUPT)
+@njit(cache=True, inline="always", _nrt=False, error_model="numpy")
+def gps_invalid(t, east, north, sigma_h):
+    """A GNSS fix no step may use (counted invalid): non-finite, beyond 1e7 m, sigma_h > 1e4 m or infinite."""
+    return not (math.isfinite(t) and math.isfinite(east) and math.isfinite(north)) \
+        or abs(east) > 1e7 or abs(north) > 1e7 or (math.isfinite(sigma_h) and sigma_h > 1e4) \
+        or math.isinf(sigma_h)
+
+
 @njit(cache=True, _nrt=False, error_model="numpy")
 def step_odo(x, P, aux, cnt, mem, cfg, ts, tg, t, speed, sigma):
     """Odometer speed z = d v (1 + k_o) + noise with the sample's own sigma, slip/slide detection
@@ -1358,9 +1382,7 @@ def step_gps(x, P, aux, cnt, cfg, ts, te, tn, tg, t, east, north, sigma_h, fix_q
     if fix_quality == 0:
         cnt[C_GPS_NOFIX] += 1
         return O_NO_FIX
-    if not (math.isfinite(t) and math.isfinite(east) and math.isfinite(north)) \
-            or abs(east) > 1e7 or abs(north) > 1e7 or (math.isfinite(sigma_h) and sigma_h > 1e4) \
-            or math.isinf(sigma_h):
+    if gps_invalid(t, east, north, sigma_h):
         cnt[C_GPS_BAD] += 1
         return O_INVALID
     if aux[A_INIT] == 0.0:

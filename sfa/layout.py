@@ -150,7 +150,13 @@ A_GY_RC0 = A_GY_LAM + 3  #: the window's A_GY_RC before the correlation inflatio
 #: columns of NX). Kept in aux so the compiled updates allocate nothing per measurement.
 A_WK_PHT = A_GY_RC0 + 1
 A_WK_K = A_WK_PHT + 2 * NX
-NAUX = A_WK_K + 2 * NX
+#: Solution separation (``sfa.separation``; docs/filter.md, "Solution separation"), the same in every
+#: live hypothesis: what was detected (bits EXCLUDED_GNSS, DETECTED of sfa.separation) until A_SS_UNTIL,
+#: and the largest separation or the estimate's jump at the re-anchoring (the interval covers both)
+A_SS_MASK = A_WK_K + 2 * NX  #: bit mask (0: nothing detected)
+A_SS_UNTIL = A_SS_MASK + 1  #: the exclusion and the widening last until this time [s]
+A_SS_DS = A_SS_MASK + 2  #: that separation or jump [m]
+NAUX = A_SS_MASK + 3
 
 # ---------------------------------------------------------------- counters cnt (int64[NCNT])
 C_IMU_OK = 0
@@ -185,7 +191,9 @@ C_SLIP_REWIND = 28
 C_TIME_JUMP = 29
 C_IMU_STUCK = 30
 C_IMU_FAULT = 31
-NCNT = 32
+C_SEP_DETECT = 32  #: solution-separation detections (runs of them: an exclusion, or a widening)
+C_SEP_EXCLUDED = 33  #: GNSS fixes not used while it is excluded
+NCNT = 34
 
 COUNTER_NAMES = (
     "imu_accepted", "imu_late", "imu_invalid",
@@ -196,7 +204,7 @@ COUNTER_NAMES = (
     "initialisations", "covariance_repairs", "not_initialised",
     "gps_held_off", "gps_reacquisitions", "odo_reanchors",
     "gyro_accepted", "gyro_gated", "gps_late_applied", "slip_rewinds", "time_jumps_rejected",
-    "imu_stuck_samples", "imu_faults",
+    "imu_stuck_samples", "imu_faults", "separation_detections", "separation_excluded",
 )
 assert len(COUNTER_NAMES) == NCNT
 
@@ -296,7 +304,12 @@ K_REVERSAL = 75  #: 1: at standstill also keep the reversed sense of travel
 K_MAX_TIME_JUMP = 76  #: a measurement further ahead of the state needs confirming [s]
 K_GYRO_AD_M = 77  #: memory of the learned curvature-error scale, in metres travelled (0: fixed at 1) [m]
 K_REVERSAL_PRIOR = 78  #: log prior odds against a reversal at a standstill (the mirror starts behind) [-]
-NCFG = 79
+# solution separation (sfa.separation)
+K_SEP_WINDOW = 79  #: life of a sub-filter between re-anchorings (two per aid, staggered by half) (0: off) [s]
+K_SEP_GATE = 80  #: chi-square gate on (main - sub)^2 / (P_sub - P_main), 1 dof [NIS]
+K_SEP_HOLD = 81  #: how long GNSS stays excluded, or the interval widened, after a detection [s]
+K_SEP_FLOOR_VAR = 82  #: variance added to sigma_ss^2: separations no covariance carries [m^2]
+NCFG = 83
 
 # ---------------------------------------------------------------- measurement kinds and result codes
 M_IMU = 1
@@ -333,6 +346,8 @@ R_STANDSTILL = 1 << 10
 R_GNSS_REJECTING = 1 << 11
 R_IMU_STUCK = 1 << 12
 R_IMU_FAULT = 1 << 13
+R_SEP_GNSS = 1 << 14  #: solution separation excluded GNSS
+R_SEP_DETECTED = 1 << 15  #: solution separation detected a fault it excluded no aid for
 
 REASON_NAMES = {
     R_NOT_INIT: "not_initialised",
@@ -349,12 +364,14 @@ REASON_NAMES = {
     R_GNSS_REJECTING: "gnss_rejected",
     R_IMU_STUCK: "imu_stuck",
     R_IMU_FAULT: "imu_fault",
+    R_SEP_GNSS: "gnss_excluded",
+    R_SEP_DETECTED: "separation_detected",
 }
 
 #: a sensor declared faulty or missing: while any is set the reported sigma is widened by K_FAULT_SIGMA_SCALE
 FAULT_REASONS = (
     R_SLIP | R_GNSS_STEP | R_GNSS_RAMP | R_IMU_STUCK | R_IMU_FAULT
-    | R_GPS_TIMEOUT | R_ODO_TIMEOUT | R_IMU_TIMEOUT
+    | R_GPS_TIMEOUT | R_ODO_TIMEOUT | R_IMU_TIMEOUT | R_SEP_GNSS | R_SEP_DETECTED
 )
 
 #: reasons that are informative only (do not degrade the status)
