@@ -118,7 +118,9 @@ A_AD_SH = 72  #: weighted mean of the reported sigma_h [m] (the white error scal
 #: Statistics of the cross-track residual c: AD_NMOM moments E[c(t) c(t - L)], index 0 the lag-0
 #: moment E[c^2], then the history lags AD_LAGS_S; each with its mean lag L and its weight (seconds of
 #: data, capped by the window)
-AD_LAGS_S = (2.0, 5.0, 15.0, 40.0)  #: lags of the moments 1.. [s]
+#: lags of the moments 1.. [s]: up to 100 s, so that a correlation time near the 120 s real receivers
+#: show is told from a constant (with 40 s the last, the fit ran to its 1000 s bound; docs/filter.md)
+AD_LAGS_S = (2.0, 5.0, 15.0, 40.0, 100.0)
 AD_NMOM = 1 + len(AD_LAGS_S)
 A_AD_M = 73  #: moments [m^2]
 A_AD_L = A_AD_M + AD_NMOM  #: mean lags [s]
@@ -133,7 +135,7 @@ A_AD_HI = A_AD_HN + 1
 #: reported one (``gnss_noise.share``, called by TrackFilter and the fast replay before each GNSS fix)
 A_AD_FREEZE = A_AD_HI + 1
 A_AD_HIST = A_AD_FREEZE + 1
-AD_HIST = 45  #: history entries (covers AD_HIST x AD_HIST_SPACING_S seconds, beyond the longest lag)
+AD_HIST = 110  #: history entries (covers AD_HIST x AD_HIST_SPACING_S seconds, beyond the longest lag)
 AD_HIST_SPACING_S = 1.0  #: spacing of the history entries [s]
 #: Scale of the curvature-model variance (>= 1), learned from the gyro innovations when K_GYRO_AD_M > 0
 #: (docs/filter.md, "Curvature error"): like the GNSS model, one value for every hypothesis, the
