@@ -7,6 +7,7 @@ import math
 
 import numpy as np
 import pytest
+from helpers_filter import run_filter
 
 from interface_modules.presets import GPS_PRESETS, IMU_PRESETS, ODOMETER_PRESETS
 from sfa import batch
@@ -32,16 +33,6 @@ def db(tmp_path_factory):
 @pytest.fixture(scope="module")
 def cfg():
     return filter_config_for("mems-train", "wheel-odometer", "standalone")
-
-
-def run_filter(db, cfg, measurements):
-    """Per-message run: (updates, estimates after each measurement, filter)."""
-    f = TrackFilter(db, cfg)
-    updates, estimates = [], []
-    for m in measurements:
-        updates.append(f.process(m))
-        estimates.append(f.estimate())
-    return updates, estimates, f
 
 
 def truth_at(run, t):

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from helpers_filter import run_filter
 
 from interface_modules.presets import GPS_PRESETS, IMU_PRESETS, ODOMETER_PRESETS
 from sfa import batch
@@ -14,8 +15,7 @@ from sfa.config import FilterConfig
 from sfa.filter import TrackFilter
 from sfa.layout import K_USE_GYRO, Outcome
 from sfa.presets import filter_config_for
-from sfa.synthetic import Faults, build_track_db, generate
-from track_db import TrackDatabase
+from sfa.synthetic import Faults, generate
 
 IMU = IMU_PRESETS["mems-train"]
 ODO = ODOMETER_PRESETS["wheel-odometer"]
@@ -24,10 +24,8 @@ RAMP = (150.0, 250.0, 0.0, 0.3)  #: 0.3 m/s along the northbound track, reaching
 
 
 @pytest.fixture(scope="module")
-def db(tmp_path_factory):
-    path = build_track_db(tmp_path_factory.mktemp("track") / "synthetic.db")
-    with TrackDatabase.open(path) as database:
-        yield database
+def db(track):  # conftest's synthetic track database
+    return track
 
 
 @pytest.fixture(scope="module")
@@ -39,15 +37,6 @@ def cfg():
 @pytest.fixture(scope="module")
 def ramp_run(db):
     return generate(db, 1, 260.0, IMU, ODO, GPS, seed=14, faults=Faults(gps_ramps=(RAMP,)))
-
-
-def run_filter(db, cfg, measurements):
-    f = TrackFilter(db, cfg)
-    updates, estimates = [], []
-    for m in measurements:
-        updates.append(f.process(m))
-        estimates.append(f.estimate())
-    return updates, estimates, f
 
 
 def ramp_figures(run, estimates):
