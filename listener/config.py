@@ -123,6 +123,17 @@ class FilterSelection:
     imu: str = "mems-train"  #: IMU preset name
     odometer: str = "wheel-odometer"  #: odometer preset name
     gps: str = "standalone"  #: GNSS preset name
+    #: ``[filter.set]``: FilterConfig fields set on top of the preset (``sfa.config.FilterConfig``, units
+    #: in the field names), as sorted (name, value) pairs, e.g. ``separation_window_s = 60.0``
+    set: tuple[tuple[str, float | int | bool], ...] = ()
+
+    def filter_config(self, **extra: object):
+        """The ``sfa.config.FilterConfig`` this selection names: the preset family's configuration of
+        the three sensors, the ``set`` fields, then ``extra`` (a replay's sweep) on top."""
+        from sfa.presets import config_for
+
+        return config_for(self.presets, imu=self.imu, odometer=self.odometer, gps=self.gps,
+                          **{**dict(self.set), **extra})
 
 
 @dataclass(frozen=True)
@@ -288,8 +299,23 @@ def _build(cls: type, data: dict[str, Any], prefix: str) -> Any:
         name = f"{prefix}{key}"
         if key not in fields:
             raise ConfigError(f"{name}: unknown key (known: {', '.join(sorted(fields))})")
-        kwargs[key] = _coerce(name, value, fields[key].type)
+        raw = cls is FilterSelection and key == "set"  # (already checked by _filter_set)
+        kwargs[key] = value if raw else _coerce(name, value, fields[key].type)
     return cls(**kwargs)
+
+
+def _filter_set(table: Any) -> tuple[tuple[str, float | int | bool], ...]:
+    """``[filter.set]`` as sorted (name, value) pairs: numbers and booleans only (the names and ranges
+    are checked against FilterConfig in :func:`_validate`)."""
+    if not isinstance(table, dict):
+        raise ConfigError("filter.set: expected a table of FilterConfig fields")
+    out = []
+    for name, value in sorted(table.items()):
+        finite = isinstance(value, bool) or (isinstance(value, int | float) and math.isfinite(value))
+        if not finite:
+            raise ConfigError(f"filter.set.{name}: expected a finite number or true/false, got {value!r}")
+        out.append((name, value))
+    return tuple(out)
 
 
 def _validate(cfg: ListenerConfig) -> None:
@@ -321,6 +347,13 @@ def _validate(cfg: ListenerConfig) -> None:
     need(pl.arc_margin_m >= 0.0, "plausibility.arc_margin_m", "must be >= 0")
     need(pl.gt_confirm_window_s > 0.0, "plausibility.gt_confirm_window_s", "must be > 0")
     need(pl.gt_confirm_tolerance_m > 0.0, "plausibility.gt_confirm_tolerance_m", "must be > 0")
+    if cfg.filter.set:  # every field and value as FilterConfig checks them (a clear error, at load)
+        from sfa.errors import SfaError
+
+        try:
+            cfg.filter.filter_config()
+        except (SfaError, KeyError, TypeError) as exc:
+            raise ConfigError(f"filter.set: {exc}") from exc
     ck = cfg.checkpoint
     need(ck.interval_s > 0.0, "checkpoint.interval_s", "must be > 0")
     need(ck.max_age_s > 0.0, "checkpoint.max_age_s", "must be > 0")
@@ -423,6 +456,8 @@ def config_from_dict(data: dict[str, Any]) -> ListenerConfig:
         if key in _SECTIONS:
             if not isinstance(value, dict):
                 raise ConfigError(f"{key}: expected a table")
+            if key == "filter" and "set" in value:
+                value = {**value, "set": _filter_set(value["set"])}
             kwargs[key] = _build(_SECTIONS[key], value, f"{key}.")
         elif key in top:
             kwargs[key] = _coerce(key, value, top[key].type)

@@ -109,11 +109,8 @@ class Pipeline:
         self.cfg = config or ListenerConfig()
         if filt is None:
             from sfa.filter import TrackFilter
-            from sfa.presets import config_for
 
-            sel = self.cfg.filter
-            cfg = config_for(sel.presets, imu=sel.imu, odometer=sel.odometer, gps=sel.gps)
-            filt = TrackFilter(track, cfg)
+            filt = TrackFilter(track, self.cfg.filter.filter_config())
         self.filter = filt
         self.track = track
         inp = self.cfg.input

@@ -1207,14 +1207,6 @@ def gyro_window_update(x, P, aux, cnt, cfg):
 
 
 # ============================================================== odometer (+ slip detection, ZUPT)
-@njit(cache=True, inline="always", _nrt=False, error_model="numpy")
-def gps_invalid(t, east, north, sigma_h):
-    """A GNSS fix no step may use (counted invalid): non-finite, beyond 1e7 m, sigma_h > 1e4 m or infinite."""
-    return not (math.isfinite(t) and math.isfinite(east) and math.isfinite(north)) \
-        or abs(east) > 1e7 or abs(north) > 1e7 or (math.isfinite(sigma_h) and sigma_h > 1e4) \
-        or math.isinf(sigma_h)
-
-
 @njit(cache=True, _nrt=False, error_model="numpy")
 def step_odo(x, P, aux, cnt, mem, cfg, ts, tg, t, speed, sigma):
     """Odometer speed z = d v (1 + k_o) + noise with the sample's own sigma, slip/slide detection
@@ -1336,6 +1328,14 @@ def step_odo(x, P, aux, cnt, mem, cfg, ts, tg, t, speed, sigma):
 
 
 # ============================================================== GNSS
+@njit(cache=True, inline="always", _nrt=False, error_model="numpy")
+def gps_invalid(t, east, north, sigma_h):
+    """A GNSS fix no step may use (counted invalid): non-finite, beyond 1e7 m, sigma_h > 1e4 m or infinite."""
+    return not (math.isfinite(t) and math.isfinite(east) and math.isfinite(north)) \
+        or abs(east) > 1e7 or abs(north) > 1e7 or (math.isfinite(sigma_h) and sigma_h > 1e4) \
+        or math.isinf(sigma_h)
+
+
 @njit(cache=True, _nrt=True)  # allocates H: numba's allocator, whatever the caller's flags
 def gps_model(x, ts, te, tn, dl, s_lin):
     """h(x*) = point_at(s_lin - v dl) + (e_gnss, n_gnss) and its Jacobian rows (2 x NX) at x*, the state

@@ -209,10 +209,26 @@ def test_config_rejects_bad_values():
         ({"log": {"level": "chatty"}}, "log.level"),
         ({"bogus": 1}, "bogus"),
         ({"input": 3}, "input"),
+        ({"filter": {"set": {"nope": 1.0}}}, "filter.set"),
+        ({"filter": {"set": {"separation_window_s": -1.0}}}, "filter.set"),
+        ({"filter": {"set": {"separation_window_s": "60"}}}, "filter.set.separation_window_s"),
+        ({"filter": {"set": 3}}, "filter.set"),
     ]:
         with pytest.raises(ConfigError) as exc:
             config_from_dict(bad)
         assert str(exc.value).startswith(key), (bad, str(exc.value))
+
+
+def test_filter_set_reaches_the_pipelines_filter(track):
+    """``[filter.set]`` fields are applied on top of the preset, in the listener's own filter."""
+    from listener.config import load_config
+
+    cfg = load_config(None, ["filter.set.separation_window_s=60.0", "filter.set.gate_prob_gps=0.999"])
+    assert cfg.filter.set == (("gate_prob_gps", 0.999), ("separation_window_s", 60.0))
+    got = Pipeline(track, cfg).filter.config
+    base = ListenerConfig().filter.filter_config()
+    assert got == base.replace(separation_window_s=60.0, gate_prob_gps=0.999)
+    assert got != base
 
 
 def test_a_far_future_epoch_is_rejected_and_changes_nothing(track, run):

@@ -174,7 +174,6 @@ def replay_rows(tmp: Path, quick: bool, repeats: int, quick_s: float = 300.0, lo
     from interface_modules.tracks import database_path
     from sfa import layout as L
     from sfa.batch import run_packed
-    from sfa.presets import config_for
     from sfa.track_arrays import TrackArrays
     from tools.fast_replay import try_fast_replay
     from tools.replay import ReplayOptions, replay_capture
@@ -190,8 +189,7 @@ def replay_rows(tmp: Path, quick: bool, repeats: int, quick_s: float = 300.0, lo
         raise ToolError(f"{SCENARIO}: no track database")
     track = TrackDatabase.open(db_path)
     opts = ReplayOptions(config=_listener_config(sc))
-    sel = opts.config.filter
-    cfg_obj = config_for(sel.presets, imu=sel.imu, odometer=sel.odometer, gps=sel.gps)
+    cfg_obj = opts.config.filter.filter_config()
     cfg = cfg_obj.to_array()
     log("replay: default replay once, its filter inputs recorded (and compiled code loaded)")
     kind, t_s, vals, res, info = record_filter_inputs(capture, track, opts)

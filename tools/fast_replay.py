@@ -174,7 +174,6 @@ def vital_reason(got, result, options, bits=None) -> str:
         return "vital supervision: DEGRADED estimates with the extended output or standard_output = nominal"
     from listener.config import decay_reasons
     from sfa.layout import REASON_NAMES
-    from sfa.presets import config_for
 
     if np.any(degraded):
         # a run of outputs carrying a decay reason (bits -1: not recorded, any) as long as the budget;
@@ -192,9 +191,7 @@ def vital_reason(got, result, options, bits=None) -> str:
             if epoch[min(b, epoch.size - 1)] - epoch[a] >= v.fault_budget_s - _SLACK_S:
                 return "vital supervision: a decay reason as long as vital.fault_budget_s (decay may latch)"
 
-    sel = cfg.filter
-    fc = config_for(sel.presets, imu=sel.imu, odometer=sel.odometer, gps=sel.gps,
-                    **dict(options.filter_overrides))
+    fc = cfg.filter.filter_config(**dict(options.filter_overrides))
     rate = cfg.clock.rate
     timeouts = {1: fc.imu_timeout_s / rate, 2: fc.odo_timeout_s / rate, 3: fc.gps_timeout_s / rate}
     reason_of = {1: "imu_timeout", 2: "odometer_timeout", 3: "gnss_timeout"}

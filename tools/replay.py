@@ -88,13 +88,9 @@ class ReplayResult:
 def build_pipeline(track, options: ReplayOptions) -> Pipeline:
     """The listener pipeline for ``options`` (the filter built with any sweep overrides)."""
     from sfa.filter import TrackFilter
-    from sfa.presets import config_for
 
-    sel = options.config.filter
     try:
-        cfg = config_for(
-            sel.presets, imu=sel.imu, odometer=sel.odometer, gps=sel.gps, **dict(options.filter_overrides)
-        )
+        cfg = options.config.filter.filter_config(**dict(options.filter_overrides))
     except (KeyError, TypeError) as exc:
         raise ToolError(f"filter configuration: {exc}") from exc
     except Exception as exc:

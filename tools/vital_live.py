@@ -280,10 +280,8 @@ def run_live(kinds: list[str], runs: int, work: Path, extra_set: tuple[str, ...]
 
 def evaluate(windows: list[Window], records: list[dict], received: list[tuple[float, int]]) -> dict[str, Any]:
     from listener.config import FilterSelection
-    from sfa.presets import config_for
 
-    sel = FilterSelection()  # the listener's default filter
-    fc = config_for(sel.presets, imu=sel.imu, odometer=sel.odometer, gps=sel.gps)
+    fc = FilterSelection().filter_config()  # the listener's default filter
     timeouts = {"imu": fc.imu_timeout_s, "odometer": fc.odo_timeout_s, "gnss": fc.gps_timeout_s,
                 "all": max(fc.imu_timeout_s, fc.odo_timeout_s)}
     # the change is a status line, or a reasons line when the status was already that bad
