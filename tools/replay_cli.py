@@ -97,6 +97,9 @@ def run(args: argparse.Namespace) -> int:
     declined = None
     if not args.exact:  # the compiled path (tools.fast_replay): the same outputs where it runs
         from tools.fast_replay import try_fast_replay
+        from tools.memory_policy import keep_freed_memory
+
+        keep_freed_memory()
 
         result, info = try_fast_replay(args.capture, track, options)
         if result is None:
