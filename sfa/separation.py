@@ -59,7 +59,6 @@ AID_GNSS = 0  #: GNSS fixes
 AID_ODO = 1  #: odometer samples
 AID_GYRO = 2  #: the gyro's map matching (the yaw rate against the track's curvature)
 NAID = 3
-AID_NAMES = ("gnss", "odometer", "gyro")
 # bits of A_SS_MASK (sfa.kernels.status_of reads them as 1 and 2)
 EXCLUDED_GNSS = 1  #: GNSS excluded (and the estimate re-anchored)
 DETECTED = 2  #: a detection nothing was excluded for (the interval widened)
@@ -244,5 +243,4 @@ def advance(kind, t, v, X, PP, AUX, CNT, MEM, IDX_line, order, ns, cfg, ts, te, 
             continue
         if not (AUX[r, L.A_SS_MASK] != 0.0 and t < AUX[r, L.A_SS_UNTIL]):  # none re-anchored mid-detection
             _anchor(k, r, X, PP, AUX, CNT, MEM, SX, SPP, SAUX, SCNT, SMEM)
-        while SS[SS_NEXT + k] <= t:  # (the copies keep their phase)
-            SS[SS_NEXT + k] += w
+        SS[SS_NEXT + k] += w * (math.floor((t - SS[SS_NEXT + k]) / w) + 1.0)  # (the copies keep their phase)
