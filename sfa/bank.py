@@ -342,6 +342,7 @@ def run_segment(kind, t, vals, i0, stop_jumps, X, PP, AUX, CNT, MEM, IDX, order,
     window = cfg[L.K_JUNCTION_WINDOW]
     cap = cfg[L.K_GPS_MAX_LOGLIK_NIS]
     emitting = e_f.shape[1] > 0
+    separating = cfg[L.K_SEP_WINDOW] > 0.0  # solution separation on (sfa.separation)
     for i in range(i0, n):
         k = kind[i]
         ti = t[i]
@@ -363,7 +364,7 @@ def run_segment(kind, t, vals, i0, stop_jumps, X, PP, AUX, CNT, MEM, IDX, order,
         accepted = False
         # solution separation's GNSS exclusion (one decision for the bank, kept in every hypothesis's
         # aux): a valid fix goes to no hypothesis
-        skip = k == 3 and SEP.gnss_excluded(AUX[order[rep]], ti) and v[3] != 0.0 \
+        skip = separating and k == 3 and SEP.gnss_excluded(AUX[order[rep]], ti) and v[3] != 0.0 \
             and not K.gps_invalid(ti, v[0], v[1], v[2])
         for j in range(nh):
             h = order[j]
@@ -410,12 +411,12 @@ def run_segment(kind, t, vals, i0, stop_jumps, X, PP, AUX, CNT, MEM, IDX, order,
         if k == 2 and cfg[L.K_REVERSAL] != 0.0 and AUX[order[ns[1]], L.A_STILL] != 0.0:
             if spawn_reversals(order, ns, X, PP, AUX, CNT, MEM, IDX, cfg):
                 prune(order, ns, X, AUX, IDX, G, LOFF, LLEN, cfg, work_i, work_f)
-        r = order[ns[1]]
-        lr = IDX[I_LINE, r]
-        a = LOFF[lr]
-        b = LOFF[lr + 1]
-        SEP.advance(k, ti, v, X, PP, AUX, CNT, MEM, lr, order, ns, cfg, G[G_S, a:b], G[G_E, a:b], G[G_N, a:b],
-                    G[G_GRADE, a:b], G[G_CURV, a:b], SX, SPP, SAUX, SCNT, SMEM, SCFG, SS)
+        if separating:
+            lr = IDX[I_LINE, order[ns[1]]]
+            a = LOFF[lr]
+            b = LOFF[lr + 1]
+            SEP.advance(k, ti, v, X, PP, AUX, CNT, MEM, lr, order, ns, cfg, G[G_S, a:b], G[G_E, a:b],
+                        G[G_N, a:b], G[G_GRADE, a:b], G[G_CURV, a:b], SX, SPP, SAUX, SCNT, SMEM, SCFG, SS)
         u_nis[i] = nis
         u_out[i] = code
         if k == 3 or (k == 2 and code == K.O_ACCEPTED):

@@ -88,6 +88,18 @@ def gnss_excluded(aux, t):
     return t < aux[L.A_SS_UNTIL] and int(aux[L.A_SS_MASK]) & EXCLUDED_GNSS != 0
 
 
+@njit(cache=True, inline="always", _nrt=False, error_model="numpy")
+def _detecting(aux, t):
+    """True while a detection holds (an exclusion or a widening: A_SS_MASK until A_SS_UNTIL)."""
+    return aux[L.A_SS_MASK] != 0.0 and t < aux[L.A_SS_UNTIL]
+
+
+@njit(cache=True, inline="always", _nrt=False, error_model="numpy")
+def _active(k, cfg):
+    """Sub-filter k runs: the gyro's only while the main filter uses the gyro (else it is the main one)."""
+    return k // COPIES != AID_GYRO or cfg[L.K_USE_GYRO] != 0.0
+
+
 @njit(cache=True, _nrt=False, error_model="numpy")
 def _anchor(k, r, X, PP, AUX, CNT, MEM, SX, SPP, SAUX, SCNT, SMEM):
     """Sub-filter k = a copy of hypothesis slot r (state, covariance, auxiliaries, rewind memory); its
@@ -110,7 +122,7 @@ def _anchor_all(t, r, skip_aid, X, PP, AUX, CNT, MEM, SX, SPP, SAUX, SCNT, SMEM,
     (c + 1) / COPIES windows from now."""
     w = cfg[L.K_SEP_WINDOW]
     for k in range(NSUB):
-        if k // COPIES == skip_aid:
+        if k // COPIES == skip_aid or not _active(k, cfg):
             continue
         _anchor(k, r, X, PP, AUX, CNT, MEM, SX, SPP, SAUX, SCNT, SMEM)
         SS[SS_NEXT + k] = t + w * (k % COPIES + 1) / COPIES
@@ -121,9 +133,9 @@ def _step_subs(kind, t, v, r, AUX, ts, te, tn, tg, tk, SX, SPP, SAUX, SCNT, SMEM
     """Measurement (kind, t, v) into every sub-filter that uses it."""
     gps_out = gnss_excluded(AUX[r], t)
     for k in range(NSUB):
+        if not _active(k, cfg):
+            continue
         aid = k // COPIES
-        if aid == AID_GYRO and cfg[L.K_USE_GYRO] == 0.0:
-            continue  # the same filter as the main one
         c = SCFG[k]
         if kind == 1:
             K.step_imu(SX[k], SPP[k], SAUX[k], SCNT[k], SMEM[k], c, ts, tg, tk, t, v[0], v[1], v[2], v[3],
@@ -147,7 +159,7 @@ def _worst(r, X, PP, AUX, SX, SPP, SAUX, cfg):
     flagged = 0
     jump = 0.0
     for k in range(NSUB):
-        if k // COPIES == AID_GYRO and cfg[L.K_USE_GYRO] == 0.0:
+        if not _active(k, cfg):
             continue
         if SAUX[k, L.A_INIT] == 0.0 or SAUX[k, L.A_T_STATE] != AUX[r, L.A_T_STATE]:
             continue
@@ -177,7 +189,7 @@ def _exclude(k, t, r, order, n, X, PP, AUX, CNT, MEM, SX, SPP, SAUX, SCNT, SMEM,
             PP[r, i, j] = SPP[k, i, j]
     AUX[r, L.A_GY_N] = 0.0  # its gyro window was summed relative to the old state
     K.mem_reset(MEM[r])  # its rewind snapshots are of the old state
-    held = t < AUX[r, L.A_SS_UNTIL]
+    held = _detecting(AUX[r], t)
     mask = float(int(AUX[r, L.A_SS_MASK]) | EXCLUDED_GNSS) if held else float(EXCLUDED_GNSS)
     for q in range(n):
         h = order[q]
@@ -192,7 +204,7 @@ def _exclude(k, t, r, order, n, X, PP, AUX, CNT, MEM, SX, SPP, SAUX, SCNT, SMEM,
 def _detect(t, r, order, n, AUX, CNT, jump, cfg):
     """Detection without exclusion (module docstring): every aid stays in, nothing is re-anchored, the
     interval is widened by the largest separation for the hold."""
-    held = t < AUX[r, L.A_SS_UNTIL] and AUX[r, L.A_SS_MASK] != 0.0
+    held = _detecting(AUX[r], t)
     mask = float(int(AUX[r, L.A_SS_MASK]) | DETECTED) if held else float(DETECTED)
     if not (held and int(AUX[r, L.A_SS_MASK]) & DETECTED):
         CNT[r, L.C_SEP_DETECT] += 1  # (counted once per run of detections)
@@ -208,9 +220,7 @@ def advance(kind, t, v, X, PP, AUX, CNT, MEM, IDX_line, order, ns, cfg, ts, te, 
             SX, SPP, SAUX, SCNT, SMEM, SCFG, SS):
     """After the bank has taken measurement (kind, t, v): the sub-filters take it, then (after an IMU
     sample) the separation test and, on a detection, the exclusion (module docstring). ``IDX_line`` is
-    the reported slot's line; ``ts .. tk`` its geometry."""
-    if cfg[L.K_SEP_WINDOW] <= 0.0:
-        return
+    the reported slot's line; ``ts .. tk`` its geometry. Called only with ``separation_window_s`` > 0."""
     r = order[ns[1]]
     if AUX[r, L.A_INIT] == 0.0:
         SS[SS_ON] = 0.0
@@ -239,8 +249,8 @@ def advance(kind, t, v, X, PP, AUX, CNT, MEM, IDX_line, order, ns, cfg, ts, te, 
         return
     w = cfg[L.K_SEP_WINDOW]
     for k in range(NSUB):
-        if SS[SS_NEXT + k] > t:
+        if SS[SS_NEXT + k] > t or not _active(k, cfg):
             continue
-        if not (AUX[r, L.A_SS_MASK] != 0.0 and t < AUX[r, L.A_SS_UNTIL]):  # none re-anchored mid-detection
+        if not _detecting(AUX[r], t):  # none re-anchored mid-detection
             _anchor(k, r, X, PP, AUX, CNT, MEM, SX, SPP, SAUX, SCNT, SMEM)
         SS[SS_NEXT + k] += w * (math.floor((t - SS[SS_NEXT + k]) / w) + 1.0)  # (the copies keep their phase)
