@@ -3,6 +3,7 @@ it every new block is faulted in again (each case in its own process: the policy
 
 from __future__ import annotations
 
+import os
 import subprocess
 import sys
 
@@ -39,3 +40,12 @@ def test_freed_blocks_are_reused_without_page_faults():
     assert keep[0] > 0 and default[0] > 0  # the first block is faulted in either way
     assert min(default[1:]) > default[0] // 2  # glibc's default: mmap, munmap, fault again
     assert max(keep[1:]) < min(default[1:]) // 10  # with the policy: reused from the heap
+
+
+def test_policy_turns_numpys_huge_page_requests_off():
+    # (NumPy reads NUMPY_MADVISE_HUGEPAGE at import: 1 forces the requests on before the policy)
+    code = ("from tools.memory_policy import huge_page_requests, keep_freed_memory\n"
+            "before = huge_page_requests()\nkeep_freed_memory()\nprint(before, huge_page_requests())")
+    out = subprocess.run([sys.executable, "-c", code, "x"], check=True, capture_output=True, text=True,
+                         timeout=60, env={**os.environ, "NUMPY_MADVISE_HUGEPAGE": "1"})
+    assert out.stdout.split() == ["True", "False"]
