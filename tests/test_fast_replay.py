@@ -138,6 +138,18 @@ def test_fast_equals_exact_on_a_clean_capture(sim):
     assert exact.metrics["input"]["stops"] == 1  # the run ends at the simulator's STOP
 
 
+def test_filter_inputs_are_the_rows_the_filter_processed(sim):
+    rec: dict = {}
+    fast, info = try_fast_replay(sim["cap"], sim["track"], ReplayOptions(), filter_inputs=rec)
+    assert info.used, info.reason
+    n = rec["kind"].size
+    assert n > 0 and rec["t"].shape == (n,) and rec["vals"].shape[0] == n
+    # after the exact prefix, one update per packed row, in the same order and at the same times
+    assert np.array_equal(fast.updates["t"][-n:], rec["t"])
+    names = {1: "imu", 2: "odo", 3: "gps"}
+    assert list(fast.updates["kind"][-n:]) == [names[int(k)] for k in rec["kind"]]
+
+
 def test_fast_equals_exact_through_junctions_and_stops(tram):
     """Junction windows: TrackFilter spawns the branches (Python, the track database) and its compiled
     loop (sfa.bank) carries the hypotheses on several lines and the standstill reversal hypotheses:

@@ -98,30 +98,18 @@ def cpu_timed(fn) -> float:
 
 
 def record_filter_inputs(capture: Path, track, opts):
-    """One default replay of ``capture`` with its filter's packed inputs recorded: the arrays of the first
-    ``TrackFilter.run`` call from its first row (the measurements as dated, sequenced and merged), behind
+    """One default replay of ``capture`` with its filter's packed inputs recorded (``try_fast_replay``'s
+    ``filter_inputs``: the measurements as dated, sequenced and merged, after the exact prefix), behind
     the capture's first GROUND TRUTH packed by ``sfa.batch.pack``. Returns (kind, t_s, values, result,
     info); (None, reason) parts when the replay fell back."""
     from listener.codec import DecodeError, GroundTruth, decode_input
     from listener.pipeline import to_measurement
     from sfa.batch import pack
-    from sfa.filter import TrackFilter
     from tools.capture_reader import read_capture
     from tools.fast_replay import try_fast_replay
 
     seen: dict = {}
-    run = TrackFilter.run
-
-    def recording(self, kind, t, vals, i0, out):
-        if not seen:
-            seen.update(kind=np.array(kind[i0:]), t=np.array(t[i0:]), vals=np.array(vals[i0:]))
-        return run(self, kind, t, vals, i0, out)
-
-    TrackFilter.run = recording
-    try:
-        res, info = try_fast_replay(capture, track, opts)
-    finally:
-        TrackFilter.run = run
+    res, info = try_fast_replay(capture, track, opts, filter_inputs=seen)
     if res is None or not seen:
         return None, None, None, res, info
     for d in read_capture(capture, opts.port):

@@ -88,8 +88,12 @@ def fast_replay(capture_path, track, options=None):
     return result
 
 
-def try_fast_replay(capture_path, track, options=None):
-    """(ReplayResult or None, FastReplayInfo saying which path and why)."""
+def try_fast_replay(capture_path, track, options=None, filter_inputs: dict | None = None):
+    """(ReplayResult or None, FastReplayInfo saying which path and why).
+
+    ``filter_inputs``: a dict that receives the packed measurements the filter is handed after the
+    exact prefix (``kind``, ``t``, ``vals``: ``sfa.batch.Packed``'s arrays, dated, sequenced and
+    merged), for a benchmark that runs the filter core alone on them."""
     from tools.replay import ReplayOptions
 
     options = options or ReplayOptions()
@@ -113,7 +117,7 @@ def try_fast_replay(capture_path, track, options=None):
         return None, FastReplayInfo(False, f"capture: {got}")
     if got.res[R_DATAGRAMS] == 0:
         return None, FastReplayInfo(False, "no datagram to the listener port")
-    result, info = _replay_ingested(got, track, options, ingest_s)
+    result, info = _replay_ingested(got, track, options, ingest_s, filter_inputs)
     if result is not None:
         why = vital_reason(got, result, options, result.metrics["fast_replay"].pop("reason_bits"))
         why = why or resilience_reason(result, track, options)
@@ -501,7 +505,7 @@ def _latlon(ts, lat, lon, s, line, lid, every, out_lat, out_lon):
 
 
 # ---------------------------------------------------------------------------------------- main path
-def _replay_ingested(got, track, options, ingest_s: float = 0.0):
+def _replay_ingested(got, track, options, ingest_s: float = 0.0, filter_inputs: dict | None = None):
     from listener.codec import DecodeError, decode_input
     from tools.fast_clock import replay_clock
     from tools.fast_ingest import (
@@ -664,6 +668,8 @@ def _replay_ingested(got, track, options, ingest_s: float = 0.0):
         fresh_min,
         options.config.link.start_seq + pipe.link.outputs,
     )
+    if filter_inputs is not None:
+        filter_inputs.update(kind=kind, t=t_s, vals=vals)
     i = 0
     while i < nm:
         j = state.compiled(i, kind, t_s, vals)
