@@ -47,7 +47,6 @@ def keep_freed_memory() -> bool:
     return bool(mallopt(M_MMAP_THRESHOLD, KEEP_BYTES)) and bool(mallopt(M_TRIM_THRESHOLD, KEEP_BYTES))
 
 
-
 def _huge_page_switch():
     """NumPy's switch for its huge-page requests (it returns the previous state), or None."""
     try:
