@@ -119,6 +119,14 @@ class ObcuLink:
         self._update_state(now)
         return [payload]
 
+    def count_sent(self, outputs: int, retransmits: int = 0) -> None:
+        """Count ``outputs`` new estimates and ``retransmits`` resends sent outside :meth:`send_estimate`
+        and :meth:`handle_timer` (a replay that computed them, ``tools.fast_replay``) as those count
+        theirs; the next new output is numbered after them."""
+        self.outputs += outputs
+        self.retransmits += retransmits
+        self._next_seq = (self._next_seq + outputs) & 0xFFFF
+
     def withhold(self, now: float) -> None:
         """Send nothing more of what was produced so far: the pending estimate is dropped and the newest
         sent one is never resent (vital supervision: a position that can no longer be vouched for)."""

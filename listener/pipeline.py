@@ -23,8 +23,8 @@ from __future__ import annotations
 import heapq
 import math
 from collections import Counter, deque
-from collections.abc import Callable
-from dataclasses import dataclass
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field
 from typing import Any
 
 from listener import resilience
@@ -74,6 +74,36 @@ _EVENTS_KEPT = 1000  #: events queued for the log at most (the service takes the
 _TIMEOUT_REASON = {"imu": "imu_timeout", "odometer": "odometer_timeout", "gnss": "gnss_timeout"}
 _RECHECK_STEP_S = 0.002  #: re-check period of a time-out the filter does not show yet [s]
 _RECHECK_FOR_S = 0.05  #: how long past the deadline re-checks go on [s]
+_EPOCH_FUTURE = "epoch_future"  #: reject reason of an epoch ahead of the STROBE clock (Pipeline._date)
+
+
+@dataclass(frozen=True, slots=True)
+class BatchCounts:
+    """Datagrams counted in bulk, for :meth:`Pipeline.count_batch`, which books them as
+    :meth:`Pipeline.receive` and the stages after it book each one: the listener service's datagrams
+    rejected by their header alone, and the compiled replay (``tools.fast_replay``), which takes a
+    capture's datagrams without ``receive``. Only what happened is given (every count >= 0)."""
+
+    received: int = 0  #: datagrams received (``input.received``), the rejected ones included
+    #: reject reason (``listener.reject.RejectReason`` or the sender table's) -> datagrams rejected
+    #: before sequencing
+    rejected: Mapping[Any, int] = field(default_factory=dict)
+    #: SENSOR_TYPE -> datagrams accepted (``input.by_type``; STROBE and STOP included)
+    by_type: Mapping[int, int] = field(default_factory=dict)
+    #: accepted datagrams that each continued their stream in order and were released at once, taken
+    #: without the sequence buffers (``sequencing``: received, in order, released)
+    in_order: int = 0
+    strobes: int = 0  #: STROBEs released to the clock
+    stops: int = 0  #: STOPs released
+    dated_by_epoch: int = 0  #: measurements dated by their own epoch
+    dated_by_strobe: int = 0  #: measurements dated by the STROBE clock at their arrival
+    #: measurements rejected after sequencing: an epoch ahead of the STROBE clock (``clock.max_future_s``)
+    epoch_future: int = 0
+    #: (``Update.kind``, ``Update.outcome``) -> measurements the filter processed with that outcome
+    outcomes: Mapping[tuple[str, Any], int] = field(default_factory=dict)
+    stale_not_sent: int = 0  #: estimates behind the freshness bound, not sent
+    outputs: int = 0  #: new estimates sent on the OBCU link
+    retransmits: int = 0  #: resends of the newest estimate on the OBCU link
 
 
 @dataclass(frozen=True, slots=True)
@@ -188,7 +218,7 @@ class Pipeline:
     # ------------------------------------------------------------------ inputs
     def receive(self, data: bytes, addr: Any, now: float) -> list[bytes]:
         """One INPUT_PROTOCOL datagram from ``addr`` arrived at ``now``."""
-        self.counters["received"] += 1
+        self._count("received")
         if self.stopped:
             self.counters["after_stop"] += 1
             return []
@@ -197,23 +227,20 @@ class Pipeline:
             try:
                 data = self.auth.open_input(data, addr)
             except AuthError as exc:
-                self.counters["rejected"] += 1
-                self.rejected[str(exc.reason)] += 1
+                self._count_rejected(exc.reason)
                 return self._drain(now)
             key_id = self.auth.last_key_id
         try:
             msg = self._decode(data)
         except DecodeError as exc:
-            self.counters["rejected"] += 1
-            self.rejected[str(exc.reason)] += 1
+            self._count_rejected(exc.reason)
             return self._drain(now)
         stype = int(sensor_type_of(msg))
         why = self._check_sender(addr, key_id, stype, now)
         if why is not None:
-            self.counters["rejected"] += 1
-            self.rejected[why] += 1
+            self._count_rejected(why)
             return self._drain(now)
-        self.by_type[_TYPE_NAMES.get(stype, str(stype))] += 1
+        self._count_accepted(stype)
         key = stream_key(addr, stype, self.cfg.input.per_type_sequence)
         module = _MODULE_OF_TYPE.get(stype)
         if module is not None:
@@ -328,12 +355,12 @@ class Pipeline:
         for item in released:
             msg = item.msg
             if isinstance(msg, Strobe):
-                self.counters["strobes"] += 1
+                self._count("strobes")
                 self.clock.on_strobe(msg.timestamp, item.arrival)
                 self.resilience.after_strobe(msg, item.arrival)
                 self._date_undated()
             elif isinstance(msg, Stop):
-                self.counters["stops"] += 1
+                self._count("stops")
                 stop_seen = True
             else:
                 self._date(item)
@@ -354,16 +381,16 @@ class Pipeline:
                     self.counters["undated_overflow"] += 1
                 self._undated.append(item)
                 return
-            self.counters["dated_by_strobe"] += 1
+            self._count_dated(by_strobe=True)
         else:
             ref = self.clock.to_sensor_time(item.arrival)
             if ref is not None and epoch > ref + self.cfg.clock.max_future_s:
                 # e.g. a flipped exponent bit: one such epoch would drag the filter far into the future
-                self.count_rejected_after_sequencing("epoch_future")
+                self.count_rejected_after_sequencing(_EPOCH_FUTURE)
                 self.give_back_seq(item)
-                self.resilience.warn("epoch_future", item.arrival, epoch=epoch, sensor_now=ref)
+                self.resilience.warn(_EPOCH_FUTURE, item.arrival, epoch=epoch, sensor_now=ref)
                 return
-            self.counters["dated_by_epoch"] += 1
+            self._count_dated(by_strobe=False)
         if epoch > self._newest_epoch:
             self._newest_epoch = epoch
             self._newest_epoch_arrival = item.arrival
@@ -376,9 +403,57 @@ class Pipeline:
         """The books of ``n`` datagrams rejected for ``reason`` after they were sequenced: in
         ``input.rejected`` and its reason, and in ``rejected_after_sequencing`` (they are in ``by_type``
         too: received = rejected - rejected_after_sequencing + sum(by_type) + after_stop)."""
-        self.counters["rejected"] += n
-        self.counters["rejected_after_sequencing"] += n
-        self.rejected[reason] += n
+        if n:
+            self._count_rejected(reason, n)
+            self.counters["rejected_after_sequencing"] += n
+
+    def count_batch(self, counts: BatchCounts) -> None:
+        """Book ``counts`` (datagrams taken without :meth:`receive`) as the per-datagram path books each
+        datagram: the same counters, through the same helpers. A count of 0 books nothing (a counter
+        appears once something is counted, as with single datagrams)."""
+        b = counts
+        self._count("received", b.received)
+        for reason, n in b.rejected.items():
+            self._count_rejected(reason, n)
+        for stype, n in b.by_type.items():
+            self._count_accepted(stype, n)
+        self.streams.count_in_order(b.in_order)
+        self._count("strobes", b.strobes)
+        self._count("stops", b.stops)
+        self._count_dated(False, b.dated_by_epoch)
+        self._count_dated(True, b.dated_by_strobe)
+        self.count_rejected_after_sequencing(_EPOCH_FUTURE, b.epoch_future)
+        for (kind, outcome), n in b.outcomes.items():
+            self._count_processed(kind, outcome, n)
+        self._count("stale_not_sent", b.stale_not_sent)
+        self.link.count_sent(b.outputs, b.retransmits)
+
+    # the input and filter counters (``metrics()["input"]``, ``["filter"]["outcomes"]``): the one place
+    # each rule is written, for single datagrams (n = 1) and for :meth:`count_batch`
+    def _count(self, name: str, n: int = 1) -> None:
+        if n:
+            self.counters[name] += n
+
+    def _count_rejected(self, reason: Any, n: int = 1) -> None:
+        """``n`` datagrams rejected for ``reason`` (a RejectReason, or the sender table's string)."""
+        if n:
+            self.counters["rejected"] += n
+            self.rejected[str(reason)] += n
+
+    def _count_accepted(self, stype: int, n: int = 1) -> None:
+        """``n`` datagrams of SENSOR_TYPE ``stype`` accepted (decoded, the sender allowed)."""
+        if n:
+            self.by_type[_TYPE_NAMES.get(stype, str(stype))] += n
+
+    def _count_dated(self, by_strobe: bool, n: int = 1) -> None:
+        if n:
+            self.counters["dated_by_strobe" if by_strobe else "dated_by_epoch"] += n
+
+    def _count_processed(self, kind: str, outcome: Any, n: int = 1) -> None:
+        """``n`` measurements of ``Update.kind`` the filter processed with ``outcome``."""
+        if n:
+            self.counters["processed"] += n
+            self.counters[f"outcome_{kind}_{_outcome_name(outcome)}"] += n
 
     def give_back_seq(self, item: _Arrived) -> None:
         """A released datagram was rejected for its content: its SEQ does not count as used, so the
@@ -414,8 +489,7 @@ class Pipeline:
             update = filt.process(meas)
             if self.on_update is not None:
                 self.on_update(update)
-            self.counters["processed"] += 1
-            self.counters[f"outcome_{update.kind}_{_outcome_name(update.outcome)}"] += 1
+            self._count_processed(update.kind, update.outcome)
             if update.kind == "init" and int(update.outcome) == 6:  # Outcome.INITIALISED
                 self._init_now = now
                 self._timed_out.clear()
@@ -568,7 +642,7 @@ class Pipeline:
         stale_before = self.cfg.link.max_output_age_s + self.cfg.merge.hold_s  # the hold is intended
         if sensor_now is not None and est.epoch_s < sensor_now - stale_before:
             # behind by more than the freshness bound (a backlog): never sent as a fresh estimate
-            self.counters["stale_not_sent"] += 1
+            self._count("stale_not_sent")
             self.resilience.warn("stale_not_sent", now, epoch=est.epoch_s, sensor_now=sensor_now)
             return []
         if est.epoch_s < self._last_output_epoch:

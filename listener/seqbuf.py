@@ -366,6 +366,7 @@ class StreamTable(Generic[K, T]):
         self._keys: list = [None] * max_streams  # slot -> key
         #: jump / rate-limit records of every stream (SequenceBuffer.alerts); the owner empties it
         self.alerts: list[dict] = []
+        self._taken: np.ndarray | None = None  # counters of items taken without push (count_in_order)
 
     def __len__(self) -> int:
         return len(self._slot_of)
@@ -543,6 +544,17 @@ class StreamTable(Generic[K, T]):
         core.table_flush(c.si, c.sf, c.k, c.tb, c.out, c.drop)
         return c.finish(None, self._keys.__getitem__)
 
+    def count_in_order(self, n: int) -> None:
+        """Count ``n`` items that each continued their stream in order and were released at once, taken
+        without :meth:`push` (a replay that checked so, ``tools.fast_replay``): in the totals as
+        :meth:`push` counts such an item (received, in order, released). The streams' state (expected
+        numbers, per-stream counters) does not move."""
+        if n:
+            if self._taken is None:
+                self._taken = np.zeros(core.N_COUNTERS, dtype=np.int64)
+            for k in (core.C_RECEIVED, core.C_IN_ORDER, core.C_RELEASED):
+                self._taken[k - core.S_CNT] += n
+
     @property
     def stats(self) -> StreamTableStats:
         c = self._core
@@ -550,4 +562,6 @@ class StreamTable(Generic[K, T]):
         totals = c.tb[core.T_EVICTED : core.T_EVICTED + core.N_COUNTERS].copy()
         if used.size:
             totals += c.si[used, core.S_CNT : core.S_CNT + core.N_COUNTERS].sum(axis=0)
+        if self._taken is not None:
+            totals += self._taken
         return StreamTableStats(len(self._slot_of), int(c.tb[core.T_EVICTIONS]), SeqStats(*totals.tolist()))

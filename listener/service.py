@@ -33,7 +33,7 @@ from listener.codec import HEADER_SIZE, INPUT_FORMS, RejectReason, SensorType
 from listener.config import ListenerConfig
 from listener.jsonlog import JsonLogger
 from listener.netaddr import address_error, bind_udp
-from listener.pipeline import Pipeline
+from listener.pipeline import BatchCounts, Pipeline
 from listener.sdnotify import Notifier, watchdog_interval_s
 
 #: receive buffer of the batched reader: larger than any UDP payload, so nothing is ever cut
@@ -190,9 +190,7 @@ class ListenerService:
                 self._finish("stop datagram")
         if tally:
             total = sum(tally.values())
-            pipeline.counters["received"] += total
-            pipeline.counters["rejected"] += total
-            pipeline.rejected.update(tally)  # Counter.update adds
+            pipeline.count_batch(BatchCounts(received=total, rejected=tally))
             self.counters["early_rejected"] += total
         if drain and not pipeline.stopped:
             # Pipeline.receive ends every rejection with a drain of the merge at `now`; handle_timer

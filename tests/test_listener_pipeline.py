@@ -315,3 +315,69 @@ def test_a_content_rejection_does_not_use_up_the_sequence_number(track, run):
     clean = Pipeline(track)
     _feed(clean, dgrams)
     assert m["filter"]["outcomes"] == clean.metrics()["filter"]["outcomes"]  # every fix processed
+
+
+# ---------------------------------------------------------------------------------------------- batches
+
+
+def test_count_batch_books_what_receive_books(track, run):
+    """Pipeline.count_batch (the compiled replay's and the service's bulk counts) books a batch under the
+    names and rules the per-datagram path uses: a run through ``receive`` (junk and a far-future epoch
+    included) and a fresh pipeline given only the counts of what happened (seen from the codec and the
+    pipeline's hooks, not its counters) report the same input, outcome, sequencing and link counters."""
+    from collections import Counter
+
+    from listener.errors import DecodeError
+    from listener.pipeline import BatchCounts
+
+    dgrams = _datagrams(run)
+    k = next(i for i in range(len(dgrams) // 2, len(dgrams)) if dgrams[i][2][0] == 1)
+    msg = decode_input(dgrams[k][2])
+    bad = encode_input(ImuSample(msg.seq, msg.ax, msg.ay, msg.az, msg.gx, msg.gy, msg.gz, msg.epoch + 1e5))
+    dgrams[k] = (dgrams[k][0], dgrams[k][1], bad)
+    junk = [b"", b"\x01\x00", b"\x63\x00\x00\x00\x00", b"\x01\x00\x00\x00\x07" + b"\x00" * 55]
+    pipe = _pipeline(track)
+    outcomes: Counter = Counter()
+    new_outputs = []
+    pipe.on_update = lambda u: outcomes.update([(u.kind, u.outcome)])
+    pipe.on_output = lambda seq, est: new_outputs.append(seq)
+    sent = _feed(pipe, dgrams, hostile=lambda i: junk)
+    assert pipe.stopped and outcomes and new_outputs
+
+    rejected: Counter = Counter()
+    for _ in range(0, len(dgrams), 7):  # (_feed: the junk before every 7th datagram)
+        for data in junk:
+            try:
+                decode_input(data)
+            except DecodeError as exc:
+                rejected[exc.reason] += 1
+    types = Counter(data[0] for _, _, data in dgrams)
+    counts = BatchCounts(
+        received=len(dgrams) + sum(rejected.values()),
+        rejected=rejected,
+        by_type=types,
+        in_order=len(dgrams),
+        strobes=types[9],
+        stops=types[10],
+        dated_by_epoch=len(dgrams) - types[9] - types[10] - 1,
+        epoch_future=1,
+        outcomes=outcomes,
+        outputs=len(new_outputs),
+        retransmits=len(sent) - len(new_outputs),
+    )
+    booked = _pipeline(track)
+    booked.count_batch(counts)
+    a, b = pipe.metrics(), booked.metrics()
+    assert a["input"] == b["input"]
+    assert a["input"]["rejected_by_reason"]["epoch_future"] == 1 and a["input"]["processed"] > 3000
+    assert a["filter"]["outcomes"] == b["filter"]["outcomes"]
+    for key in ("received", "released", "in_order"):
+        assert a["sequencing"][key] == b["sequencing"][key], key
+    for key in ("outputs", "retransmits"):
+        assert a["link"][key] == b["link"][key], key
+    assert booked.link.next_seq == pipe.link.next_seq
+    # nothing to count books nothing: no counter appears at 0
+    empty = _pipeline(track)
+    empty.count_batch(BatchCounts())
+    assert empty.metrics() == _pipeline(track).metrics()
+    assert not empty.counters and not empty.rejected and not empty.by_type

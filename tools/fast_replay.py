@@ -54,14 +54,13 @@ from dataclasses import dataclass, field
 import numpy as np
 from numba import njit
 
-from listener.pipeline import to_measurement
+from listener.pipeline import BatchCounts, to_measurement
 from sfa.bank import NOST, O_BITS, O_LAST, O_LINE_HI, O_LINE_LO, O_ROW, O_STALE, RunOutput
 from sfa.layout import FilterStatus, Outcome
 
 #: datagrams replayed through the exact pipeline at most before the hand-over to compiled code
 MAX_EXACT_PREFIX = 200_000
 _KIND_NAME = {1: "imu", 2: "odo", 3: "gps", 8: "init"}
-_TYPE_NAME = {1: "imu", 2: "odometer", 3: "gps", 8: "ground_truth", 9: "strobe", 10: "stop"}
 _KIND_OBJ = np.array([_KIND_NAME.get(k, "?") for k in range(16)], dtype=object)  # Update.kind by code
 _KIND_CODE = {name: code for code, name in _KIND_NAME.items()}
 
@@ -766,48 +765,44 @@ def _replay_ingested(got, track, options, ingest_s: float = 0.0, filter_inputs: 
         bits = e_i[3, :rows]
     lap("result columns")
 
-    # 6. counters: the pipeline's own objects advanced as the exact replay would have advanced them
-    c = pipe.counters
-    c["received"] += n - h
+    # 6. counters: what happened after the hand-over, booked by the listener's pipeline itself
+    # (Pipeline.count_batch: the counters and rules of Pipeline.receive and the stages after it)
+    rejected: Counter = Counter()  # reject reason -> datagrams
     if res[R_BAD]:
         for r in (np.flatnonzero(row_code[h:] < 0) + h).tolist():
             try:
                 decode_input(got.datagram(r)[2])
             except DecodeError as exc:
-                c["rejected"] += 1
-                pipe.rejected[str(exc.reason)] += 1
+                rejected[exc.reason] += 1
             else:  # pragma: no cover - the compiled pass rejected what the codec accepts: a bug
                 raise AssertionError(f"fast decoder rejected a valid datagram at index {r}")
-    if n_future:
-        pipe.count_rejected_after_sequencing("epoch_future", n_future)
     head = row_code[:h]
-    types = res[R_TYPES : R_TYPES + 16] - np.bincount(head[head >= 0], minlength=16)
-    for t in np.flatnonzero(types).tolist():
-        pipe.by_type[_TYPE_NAME.get(t, str(t))] += int(types[t])
-    c["strobes"] += n_strobes
-    if nm - n_by_strobe:
-        c["dated_by_epoch"] += nm - n_by_strobe
-    if n_by_strobe:
-        c["dated_by_strobe"] += n_by_strobe
-    c["processed"] += nm
-    if ost[O_STALE]:
-        c["stale_not_sent"] += int(ost[O_STALE])
-    for code in np.flatnonzero(pairs).tolist():
-        kd, oc = divmod(code, 16)
-        c[f"outcome_{_KIND_NAME[kd]}_{Outcome(oc).name.lower()}"] += int(pairs[code])
+    types = res[R_TYPES : R_TYPES + 16] - np.bincount(head[head >= 0], minlength=16)  # by SENSOR_TYPE
     stopped = bool(res[R_STOPPED])
-    if stopped:
-        c["stops"] += 1
+    pipe.count_batch(
+        BatchCounts(
+            received=n - h,
+            rejected=rejected,
+            by_type={t: int(types[t]) for t in np.flatnonzero(types).tolist()},
+            # (else the listener's own sequence buffers took every datagram, _sequence)
+            in_order=int(types.sum()) if seq is None else 0,
+            strobes=n_strobes,
+            stops=int(stopped),
+            dated_by_epoch=nm - n_by_strobe,
+            dated_by_strobe=n_by_strobe,
+            epoch_future=n_future,
+            outcomes={
+                (_KIND_NAME[code // 16], Outcome(code % 16)): int(pairs[code])
+                for code in np.flatnonzero(pairs).tolist()
+            },
+            stale_not_sent=int(ost[O_STALE]),
+            outputs=k_out,
+            retransmits=int(retx.shape[0]),
+        )
+    )
     if k_out:
         pipe.last_estimate = state.last_estimate(float(est["lat"][-1]), float(est["lon"][-1]))
     metrics = pipe.metrics()
-    seqm = metrics["sequencing"]
-    if seq is None:  # (else the listener's own sequence buffers took every datagram)
-        n_valid = int(types.sum())
-        for k in ("received", "released", "in_order"):
-            seqm[k] += n_valid
-    metrics["link"]["outputs"] += k_out
-    metrics["link"]["retransmits"] += int(retx.shape[0])
     for k in ("state", "state_since", "transitions", "withheld"):  # the prefix's: not simulated after it
         metrics["link"].pop(k, None)
     compiled = (n - h) - state.python_steps
