@@ -3,14 +3,32 @@
 Gates are given as probabilities (the probability that a fault-free measurement passes); they are
 turned into chi-square thresholds on the normalised innovation squared (NIS, dimensionless) with the
 measurement's degrees of freedom: odometer, gyro and ZUPT 1, GNSS 2.
+
+The compiled kernels read the configuration as a flat float64 vector (``FilterConfig.to_array``),
+by slot name (``sfa.layout.K_*``). Each field that reaches them declares its slot here, with
+:func:`slot`: the slot's name and, where the kernels read something other than the field itself, how
+it is computed from the configuration (and what it is, with its unit). ``sfa.layout`` numbers the
+slots in the order they are declared (:data:`CFG_SLOTS`), so a new parameter is one field below with
+its ``slot(...)`` and its ``#:`` documentation; the kernels then read it as ``cfg[K_<NAME>]``.
 """
 
 from __future__ import annotations
 
 import math
-from dataclasses import asdict, dataclass, fields
+from collections.abc import Callable
+from dataclasses import asdict, dataclass, field, fields
+from typing import Any
 
 from sfa.errors import FilterConfigError
+
+
+def slot(default: Any, name: str, value: Callable[[Any], float] | None = None, doc: str = "") -> Any:
+    """A :class:`FilterConfig` field that reaches the kernels: its ``default``, and the configuration
+    slot ``name`` (``K_*`` in ``sfa.layout``) that ``to_array`` fills with ``value(config)``, or with
+    the field itself when ``value`` is None (as a float: a bool is 1.0 or 0.0, an int exact).
+    ``doc``: what the slot holds and its unit, where that is not the field itself. A slot computed
+    from several fields is declared by one of them, with a ``value`` that reads the others."""
+    return field(default=default, metadata={"slot": name, "value": value, "doc": doc})
 
 
 @dataclass(frozen=True)
@@ -19,27 +37,40 @@ class FilterConfig:
     wheel odometer, standalone GNSS (see ``sfa.presets.filter_config_for``)."""
 
     # --- IMU (prediction)
-    accel_noise_density_mps2_rthz: float = 5.88e-4  #: accelerometer white noise [m/s^2/sqrt(Hz)]
-    accel_model_noise_mps2_rthz: float = 0.05  #: unmodelled acceleration [m/s^2/sqrt(Hz)]
-    accel_bias_rw_mps2_rts: float = 2.0e-4  #: accelerometer bias random walk [m/s^2/sqrt(s)]
-    init_sigma_accel_bias_mps2: float = 0.088  #: initial bias sigma incl. pitch misalignment [m/s^2]
-    init_sigma_yaw_misalignment_rad: float = 0.0087  #: initial IMU yaw misalignment sigma [rad]
-    init_sigma_accel_scale: float = 0.002  #: initial accelerometer scale-factor sigma [-]
-    no_imu_accel_psd_m2ps3: float = 0.5  #: acceleration PSD while the IMU is timed out [m^2/s^3]
-    gravity_mps2: float = 9.80665  #: gravity [m/s^2]
-    max_predict_dt_s: float = 0.1  #: longest single prediction step [s]
+    #: accelerometer white noise [m/s^2/sqrt(Hz)]
+    accel_noise_density_mps2_rthz: float = slot(
+        5.88e-4, "K_Q_ACC",
+        lambda c: c.accel_noise_density_mps2_rthz ** 2 + c.accel_model_noise_mps2_rthz ** 2,
+        doc="accelerometer white noise PSD incl. model noise [m^2/s^3]")
+    #: unmodelled acceleration (in K_Q_ACC with the white noise above) [m/s^2/sqrt(Hz)]
+    accel_model_noise_mps2_rthz: float = 0.05
+    #: accelerometer bias random walk [m/s^2/sqrt(s)]
+    accel_bias_rw_mps2_rts: float = slot(2.0e-4, "K_Q_BA", lambda c: c.accel_bias_rw_mps2_rts ** 2,
+                                         doc="accelerometer bias random walk PSD [m^2/s^5]")
+    #: initial bias sigma incl. pitch misalignment [m/s^2]
+    init_sigma_accel_bias_mps2: float = slot(0.088, "K_INIT_SIGMA_BA")
+    #: initial IMU yaw misalignment sigma [rad]
+    init_sigma_yaw_misalignment_rad: float = slot(0.0087, "K_INIT_SIGMA_MY")
+    #: initial accelerometer scale-factor sigma [-]
+    init_sigma_accel_scale: float = slot(0.002, "K_INIT_SIGMA_SF")
+    #: acceleration PSD while the IMU is timed out [m^2/s^3]
+    no_imu_accel_psd_m2ps3: float = slot(0.5, "K_Q_NO_IMU")
+    gravity_mps2: float = slot(9.80665, "K_GRAVITY")  #: gravity [m/s^2]
+    max_predict_dt_s: float = slot(0.1, "K_MAX_DT")  #: longest single prediction step [s]
     #: map registration: the database's arc length is the digitised polyline's, not the distance the
     #: train travels on the track as built (corners cut or not, vertices off the track), so the two
     #: drift apart by a random walk in the distance travelled: Q[S,S] += this |v| h. 1e-3 m^2/m is a
     #: 0.5 % length error correlated over 50 m ((0.005 * 50)^2 / 50 = 1.25e-3, the value of
     #: sfa.presets.datasheet_config_for); 0 (the default here): model-matched [m^2/m]
-    registration_psd_m2pm: float = 0.0
+    registration_psd_m2pm: float = slot(0.0, "K_Q_REG")
     # --- gyro (optional update gz = v * curvature(s) + b_g)
-    use_gyro: bool = True  #: apply the gyro update gz = v curvature(s) + b_g (see docs/filter.md)
-    gyro_sigma_radps: float = 0.005  #: gyro white noise and scale error per sample [rad/s]
+    #: apply the gyro update gz = v curvature(s) + b_g (see docs/filter.md)
+    use_gyro: bool = slot(True, "K_USE_GYRO")
+    #: gyro white noise and scale error per sample [rad/s]
+    gyro_sigma_radps: float = slot(0.005, "K_GYRO_SIGMA")
     #: curvature-model error of the database, counted once per gyro window [1/m] (R += (v sigma)^2);
     #: 1.5e-3 / sqrt(5) = 6.7e-4: the information of the per-sample value 1.5e-3 before the gyro window
-    curvature_sigma_inv_m: float = 6.7e-4
+    curvature_sigma_inv_m: float = slot(6.7e-4, "K_CURV_SIGMA")
     #: the rest of the curvature-model error comes from the geometry (docs/filter.md, "Curvature error"):
     #: sigma_k^2 = curvature_sigma^2 + (rel k)^2 + (registration dk/ds)^2, correlated along the track
     #: over curvature_corr_length_m, so that the gyro windows inside one correlation length share it
@@ -50,133 +81,188 @@ class FilterConfig:
     #: off by a quarter of its value (smoothing lowers it, an as-built path differs from the map).
     #: rel = registration = corr = 0 (the defaults here) is the model-matched form (the database is the
     #: true path); sfa.presets.datasheet_config_for sets the digitised-map values 0.25, 20 m and 40 m.
-    curvature_rel_sigma: float = 0.0  #: curvature error as a fraction of the curvature [-]
-    curvature_registration_m: float = 0.0  #: along-track uncertainty of the curvature profile [m]
-    curvature_corr_length_m: float = 0.0  #: correlation length of the curvature error [m]
+    #: curvature error as a fraction of the curvature [-]
+    curvature_rel_sigma: float = slot(0.0, "K_CURV_REL")
+    #: along-track uncertainty of the curvature profile [m]
+    curvature_registration_m: float = slot(0.0, "K_CURV_REG_M")
+    #: correlation length of the curvature error [m]
+    curvature_corr_length_m: float = slot(0.0, "K_CURV_CORR_M")
     #: compensate the body roll in curves (cant) before the gyro update: the roll angle comes from the
     #: accelerometer's lateral/vertical specific force against the expected (v^2 k(s), -g), and the yaw
     #: rate about the vertical is gy sin(roll) + gz cos(roll) (see docs/filter.md) [-]
-    gyro_tilt_compensation: bool = True
-    gyro_bias_rw_radps_rts: float = 2.0e-5  #: gyro bias random walk [rad/s/sqrt(s)]
-    init_sigma_gyro_scale: float = 0.005  #: initial gyro scale-factor sigma (state SG) [fraction]
+    gyro_tilt_compensation: bool = slot(True, "K_GYRO_TILT")
+    #: gyro bias random walk [rad/s/sqrt(s)]
+    gyro_bias_rw_radps_rts: float = slot(2.0e-5, "K_Q_BG", lambda c: c.gyro_bias_rw_radps_rts ** 2,
+                                         doc="gyro bias random walk PSD [rad^2/s^3]")
+    #: initial gyro scale-factor sigma (state SG) [fraction]
+    init_sigma_gyro_scale: float = slot(0.005, "K_INIT_SIGMA_SG")
     #: gyro scale-factor random walk: lets SG follow what the roll compensation leaves of the cant from
     #: curve to curve [1/sqrt(s)]
-    gyro_scale_rw_per_rts: float = 1.0e-4
+    gyro_scale_rw_per_rts: float = slot(1.0e-4, "K_Q_SG", lambda c: c.gyro_scale_rw_per_rts ** 2,
+                                        doc="gyro scale-factor random walk PSD [1/s]")
     #: initial sigma of the yaw gyro's roll-rate coupling (state MX: the z gyro's tilt towards x, which
     #: makes it read MX times the roll rate while the cant ramps up or down in curve transitions) [rad]
-    init_sigma_gyro_roll_coupling_rad: float = 0.0175
-    init_sigma_gyro_bias_radps: float = 0.0175  #: initial gyro bias sigma [rad/s]
-    gyro_min_speed_mps: float = 2.0  #: smallest speed for the gyro update [m/s]
+    init_sigma_gyro_roll_coupling_rad: float = slot(0.0175, "K_INIT_SIGMA_MX")
+    init_sigma_gyro_bias_radps: float = slot(0.0175, "K_INIT_SIGMA_BG")  #: initial gyro bias sigma [rad/s]
+    gyro_min_speed_mps: float = slot(2.0, "K_GYRO_MIN_SPEED")  #: smallest speed for the gyro update [m/s]
     #: consecutive IMU samples whose gyro residuals are averaged into one gyro update (R = sigma^2 / n
     #: for the white noise; 1: an update per sample) [samples]
-    gyro_average_samples: int = 5
-    gyro_average_max_s: float = 0.1  #: longest time a gyro window spans; a longer one is applied as it is [s]
+    gyro_average_samples: int = slot(5, "K_GYRO_AVG_N")
+    #: longest time a gyro window spans; a longer one is applied as it is [s]
+    gyro_average_max_s: float = slot(0.1, "K_GYRO_AVG_MAX_S")
     #: learn how far the database's curvature is from the path's: the gyro windows' innovations estimate
     #: a scale (>= 1) of the curvature-model variance above (weighted least squares, with this memory
     #: in metres travelled; docs/filter.md); 0 keeps the scale at 1 (the model-matched form).
     #: sfa.presets.datasheet_config_for sets 200 m: five curvature correlation lengths
-    gyro_curvature_adaptive_m: float = 0.0
+    gyro_curvature_adaptive_m: float = slot(0.0, "K_GYRO_AD_M")
     # --- odometer
-    odo_scale_rw_per_rts: float = 1.0e-5  #: odometer scale-factor random walk [1/sqrt(s)]
-    init_sigma_odo_scale: float = 0.01  #: initial odometer scale-factor sigma [fraction]
-    odo_quant_mps: float = 0.01  #: odometer quantisation step [m/s]
-    odo_sigma_min_mps: float = 0.005  #: floor applied to each sample's reported sigma [m/s]
+    #: odometer scale-factor random walk [1/sqrt(s)]
+    odo_scale_rw_per_rts: float = slot(1.0e-5, "K_Q_KO", lambda c: c.odo_scale_rw_per_rts ** 2,
+                                       doc="odometer scale random walk PSD [1/s]")
+    #: initial odometer scale-factor sigma [fraction]
+    init_sigma_odo_scale: float = slot(0.01, "K_INIT_SIGMA_KO")
+    odo_quant_mps: float = slot(0.01, "K_ODO_QUANT")  #: odometer quantisation step [m/s]
+    #: floor applied to each sample's reported sigma [m/s]
+    odo_sigma_min_mps: float = slot(0.005, "K_ODO_SIGMA_MIN")
     # --- GNSS
-    gps_white_sigma_m: float = 0.5  #: white position noise per horizontal axis at nominal sigma_h [m]
-    gps_gm_sigma_m: float = 1.0  #: correlated (Gauss-Markov) error per axis, steady sigma [m]
-    gps_gm_tau_s: float = 30.0  #: Gauss-Markov correlation time [s]
-    gps_nominal_sigma_h_m: float = 1.5  #: sigma_h the receiver reports in nominal conditions [m]
-    track_lateral_sigma_m: float = 0.3  #: cross-track uncertainty of the digitised centre line [m]
-    gps_late_max_s: float = 0.5  #: oldest GNSS fix still applied by back-propagation [s]
+    #: white position noise per horizontal axis at nominal sigma_h [m]
+    gps_white_sigma_m: float = slot(0.5, "K_GPS_WHITE")
+    #: correlated (Gauss-Markov) error per axis, steady sigma [m]
+    gps_gm_sigma_m: float = slot(1.0, "K_GM_SIGMA")
+    gps_gm_tau_s: float = slot(30.0, "K_GM_TAU")  #: Gauss-Markov correlation time [s]
+    #: sigma_h the receiver reports in nominal conditions [m]
+    gps_nominal_sigma_h_m: float = slot(1.5, "K_GPS_NOMINAL_SIGMA_H")
+    #: cross-track uncertainty of the digitised centre line [m]
+    track_lateral_sigma_m: float = slot(0.3, "K_TRACK_LAT")
+    #: oldest GNSS fix still applied by back-propagation [s]
+    gps_late_max_s: float = slot(0.5, "K_GPS_LATE_MAX")
     #: memory of the adaptive GNSS error model: sigma_g, tau and sigma_w estimated from the fixes'
     #: cross-track residuals (sfa.gnss_noise); 0 keeps the three values above fixed [s]
-    gps_adaptive_window_s: float = 0.0
+    gps_adaptive_window_s: float = slot(0.0, "K_AD_WINDOW")
     #: weight of the values above in those estimates, as seconds of data [s]
-    gps_adaptive_prior_s: float = 30.0
+    gps_adaptive_prior_s: float = slot(30.0, "K_AD_PRIOR")
     # --- gates (probability that a fault-free measurement passes)
-    gate_prob_odo: float = 0.9999  #: odometer gate, chi-square 1 dof [probability]
-    gate_prob_gps: float = 0.9999  #: GNSS gate, chi-square 2 dof [probability]
-    gate_prob_gyro: float = 0.999  #: gyro gate, chi-square 1 dof [probability]
-    gate_prob_zupt: float = 0.9999  #: zero-velocity gate, chi-square 1 dof [probability]
+    #: odometer gate, chi-square 1 dof [probability]
+    gate_prob_odo: float = slot(0.9999, "K_GATE_ODO", lambda c: c.gate_nis(c.gate_prob_odo, 1),
+                                doc="chi-square gate, 1 dof [NIS]")
+    #: GNSS gate, chi-square 2 dof [probability]
+    gate_prob_gps: float = slot(0.9999, "K_GATE_GPS", lambda c: c.gate_nis(c.gate_prob_gps, 2),
+                                doc="chi-square gate, 2 dof [NIS]")
+    #: gyro gate, chi-square 1 dof [probability]
+    gate_prob_gyro: float = slot(0.999, "K_GATE_GYRO", lambda c: c.gate_nis(c.gate_prob_gyro, 1),
+                                 doc="chi-square gate, 1 dof [NIS]")
+    #: zero-velocity gate, chi-square 1 dof [probability]
+    gate_prob_zupt: float = slot(0.9999, "K_GATE_ZUPT", lambda c: c.gate_nis(c.gate_prob_zupt, 1),
+                                 doc="chi-square gate, 1 dof [NIS]")
     # --- standstill / ZUPT
-    zupt_sigma_mps: float = 0.005  #: zero-velocity pseudo-measurement sigma [m/s]
-    still_speed_mps: float = 0.02  #: odometer |speed| below which standstill may be declared [m/s]
-    still_fx_std_mps2: float = 0.02  #: IMU forward specific-force std below which standstill holds [m/s^2]
-    fx_ewma_tau_s: float = 0.5  #: time constant of the standstill mean/variance estimator [s]
+    zupt_sigma_mps: float = slot(0.005, "K_ZUPT_SIGMA")  #: zero-velocity pseudo-measurement sigma [m/s]
+    #: odometer |speed| below which standstill may be declared [m/s]
+    still_speed_mps: float = slot(0.02, "K_STILL_SPEED")
+    #: IMU forward specific-force std below which standstill holds [m/s^2]
+    still_fx_std_mps2: float = slot(0.02, "K_STILL_FX_STD")
+    #: time constant of the standstill mean/variance estimator [s]
+    fx_ewma_tau_s: float = slot(0.5, "K_FX_EWMA_TAU")
     # --- odometer slip / slide
-    slip_confirm_n: int = 3  #: consecutive gated odometer samples that declare a slip [samples]
-    slip_release_n: int = 10  #: consecutive in-gate samples that end it [samples]
-    slip_max_s: float = 20.0  #: longest slip before the odometer is trusted again [s]
+    #: consecutive gated odometer samples that declare a slip [samples]
+    slip_confirm_n: int = slot(3, "K_SLIP_CONFIRM_N")
+    slip_release_n: int = slot(10, "K_SLIP_RELEASE_N")  #: consecutive in-gate samples that end it [samples]
+    slip_max_s: float = slot(20.0, "K_SLIP_MAX_S")  #: longest slip before the odometer is trusted again [s]
     #: a slip that outlasts slip_max_s is the accelerometer's fault, not the wheels': the speed is
     #: re-anchored on the odometer, this sigma is added to the accelerometer bias and the arc-length
     #: variance grows by the distance the odometer travelled beyond the estimate during the slip [m/s^2]
-    slip_accel_bias_sigma_mps2: float = 0.2
-    imu_fault_hold_s: float = 10.0  #: how long a declared accelerometer fault stays reported [s]
+    slip_accel_bias_sigma_mps2: float = slot(0.2, "K_SLIP_BA_SIGMA")
+    #: how long a declared accelerometer fault stays reported [s]
+    imu_fault_hold_s: float = slot(10.0, "K_IMU_FAULT_HOLD")
     #: GNSS arbitration of a declared slip: the fixes' log-likelihood ratio between "the accelerometer
     #: is faulty" (the train is where the odometer says, estimate + distance the odometer travelled
     #: beyond it) and "the odometer slips" (the IMU-bridged estimate). At +this value the accelerometer
     #: is declared faulty and the estimate moves to the odometer's position; at -this value the slip is
     #: confirmed. Until then the reported interval covers both positions (9.2 = 1e4:1) [-]
-    slip_arbitration_log_ratio: float = 9.2
+    slip_arbitration_log_ratio: float = slot(9.2, "K_SLIP_ARB_LLR")
     #: consecutive bit-identical IMU samples (all six axes) that declare the IMU stuck; a real sensor's
     #: noise never repeats exactly. 0 disables (noise-free simulated IMUs repeat legitimately) [samples]
-    imu_stuck_samples: int = 10
-    slip_rewind: bool = True  #: on a declared slip, rewind ~1-2 s and re-propagate with the IMU alone
-    snapshot_period_s: float = 1.0  #: period of the rewind snapshots [s]
+    imu_stuck_samples: int = slot(10, "K_IMU_STUCK_N")
+    #: on a declared slip, rewind ~1-2 s and re-propagate with the IMU alone (off: K_SNAP_PERIOD is -1)
+    slip_rewind: bool = True
+    #: period of the rewind snapshots [s]
+    snapshot_period_s: float = slot(
+        1.0, "K_SNAP_PERIOD", lambda c: c.snapshot_period_s if c.slip_rewind else -1.0,
+        doc="period of the rewind snapshots, -1 when slip_rewind is off [s]")
     # --- GNSS step / ramp
-    step_min_m: float = 5.0  #: smallest gated GNSS innovation classified as a step [m]
-    cusum_k_sigma: float = 0.5  #: CUSUM drift allowance [sigma of the along-track innovation]
-    cusum_h_sigma: float = 8.0  #: CUSUM decision threshold [sigma]
+    step_min_m: float = slot(5.0, "K_STEP_MIN_M")  #: smallest gated GNSS innovation classified as a step [m]
+    #: CUSUM drift allowance [sigma of the along-track innovation]
+    cusum_k_sigma: float = slot(0.5, "K_CUSUM_K")
+    cusum_h_sigma: float = slot(8.0, "K_CUSUM_H")  #: CUSUM decision threshold [sigma]
     #: k and h are per independent fix: fixes closer than this count as the fraction dt / this of one (a
     #: receiver's errors are correlated over about a second, so 10 Hz fixes are not 10x the evidence) [s]
-    cusum_min_interval_s: float = 1.0
-    gps_holdoff_s: float = 20.0  #: GNSS fixes ignored after a ramp detection [s]
-    reacquire_s: float = 30.0  #: duration of self-consistent GNSS rejections that re-anchor the position [s]
-    reacquire_consistency_m: float = 3.0  #: largest drift of the rejected along-track residual [m]
+    cusum_min_interval_s: float = slot(1.0, "K_CUSUM_DT")
+    gps_holdoff_s: float = slot(20.0, "K_GPS_HOLDOFF_S")  #: GNSS fixes ignored after a ramp detection [s]
+    #: duration of self-consistent GNSS rejections that re-anchor the position [s]
+    reacquire_s: float = slot(30.0, "K_REACQ_S")
+    #: largest drift of the rejected along-track residual [m]
+    reacquire_consistency_m: float = slot(3.0, "K_REACQ_CONSIST_M")
     # --- time-outs
-    imu_timeout_s: float = 0.5  #: IMU silent longer than this: timed out [s]
-    odo_timeout_s: float = 1.0  #: odometer silent longer than this: timed out [s]
-    gps_timeout_s: float = 3.0  #: GNSS without an accepted fix longer than this: timed out [s]
-    late_tolerance_s: float = 1e-6  #: IMU/odometer older than the state by more than this are dropped [s]
-    max_time_jump_s: float = 10.0  #: a measurement further ahead of the state needs confirming [s]
+    imu_timeout_s: float = slot(0.5, "K_IMU_TIMEOUT")  #: IMU silent longer than this: timed out [s]
+    odo_timeout_s: float = slot(1.0, "K_ODO_TIMEOUT")  #: odometer silent longer than this: timed out [s]
+    #: GNSS without an accepted fix longer than this: timed out [s]
+    gps_timeout_s: float = slot(3.0, "K_GPS_TIMEOUT")
+    #: IMU/odometer older than the state by more than this are dropped [s]
+    late_tolerance_s: float = slot(1e-6, "K_LATE_TOL")
+    #: a measurement further ahead of the state needs confirming [s]
+    max_time_jump_s: float = slot(10.0, "K_MAX_TIME_JUMP")
     # --- interval and status
-    confidence: float = 0.95  #: two-sided confidence of the arc-length interval [probability]
+    #: two-sided confidence of the arc-length interval [probability]
+    confidence: float = slot(0.95, "K_Z_INTERVAL", lambda c: c.interval_z(),
+                             doc="two-sided normal quantile of the confidence interval [-]")
     #: while a sensor is declared faulty (GNSS step or ramp, odometer slip, accelerometer fault, IMU
     #: stuck) or missing (IMU, odometer or GNSS timeout) the reported sigma is multiplied by
     #: z(fault_confidence) / z(confidence), so the reported interval spans the filter's own
     #: fault_confidence interval: a fault is detected late and what it did before detection is not in
     #: the covariance, and without a sensor the filter rests on the models that sensor would check
     #: (dead reckoning, the gyro's map matching). Equal to confidence: no widening [probability]
-    fault_confidence: float = 0.99
-    degraded_sigma_m: float = 5.0  #: sigma_s above which the status is DEGRADED [m]
-    lost_sigma_m: float = 100.0  #: sigma_s above which the status is LOST [m]
-    min_variance: float = 1e-12  #: smallest variance kept on the covariance diagonal [unit^2]
+    fault_confidence: float = slot(
+        0.99, "K_FAULT_SIGMA_SCALE", lambda c: c.interval_z(c.fault_confidence) / c.interval_z(),
+        doc="factor on the reported sigma while a sensor is faulty or missing [-]")
+    degraded_sigma_m: float = slot(5.0, "K_DEGRADED_SIGMA")  #: sigma_s above which the status is DEGRADED [m]
+    lost_sigma_m: float = slot(100.0, "K_LOST_SIGMA")  #: sigma_s above which the status is LOST [m]
+    #: smallest variance kept on the covariance diagonal [unit^2]
+    min_variance: float = slot(1e-12, "K_P_MIN_VAR")
     # --- initialisation (GROUND TRUTH)
-    init_sigma_s_m: float = 0.1  #: arc-length sigma after GROUND TRUTH [m]
-    init_sigma_v_mps: float = 0.05  #: speed sigma after GROUND TRUTH [m/s]
+    init_sigma_s_m: float = slot(0.1, "K_INIT_SIGMA_S")  #: arc-length sigma after GROUND TRUTH [m]
+    init_sigma_v_mps: float = slot(0.05, "K_INIT_SIGMA_V")  #: speed sigma after GROUND TRUTH [m/s]
     # --- lines and junctions
-    junction_window_m: float = 30.0  #: distance before a junction at which branch hypotheses are spawned [m]
-    prune_log_ratio: float = 9.2  #: log-likelihood lead that prunes a hypothesis (9.2 = 1e4:1) [-]
-    switch_log_ratio: float = 4.6  #: lead another hypothesis needs to become the reported one (100:1) [-]
-    max_hypotheses: int = 6  #: most line / direction hypotheses kept at once [-]
-    reversal_hypotheses: bool = True  #: at standstill also keep the reversed sense of travel
+    #: distance before a junction at which branch hypotheses are spawned [m]
+    junction_window_m: float = slot(30.0, "K_JUNCTION_WINDOW")
+    #: log-likelihood lead that prunes a hypothesis (9.2 = 1e4:1) [-]
+    prune_log_ratio: float = slot(9.2, "K_PRUNE_LOG_RATIO")
+    #: lead another hypothesis needs to become the reported one (100:1) [-]
+    switch_log_ratio: float = slot(4.6, "K_SWITCH_LOG_RATIO")
+    max_hypotheses: int = slot(6, "K_MAX_HYPOTHESES")  #: most line / direction hypotheses kept at once [-]
+    #: at standstill also keep the reversed sense of travel
+    reversal_hypotheses: bool = slot(True, "K_REVERSAL")
     #: prior log odds against the train reversing at a standstill once its sense of travel is known: the
     #: mirrored copy starts this far behind its source (4.6 = 1:100). With switch_log_ratio it must then
     #: gather 9.2 of evidence to be reported: a real reversal gives that within a GNSS fix or two, while
     #: gyro-vs-curvature evidence alone in a GNSS outage gave the wrong sense 5.6 (docs/filter.md)
-    reversal_log_prior: float = 4.6
-    loglik_nis_cap: float = 50.0  #: NIS cap in the hypothesis likelihood (robust to outliers) [NIS]
+    reversal_log_prior: float = slot(4.6, "K_REVERSAL_PRIOR")
+    #: NIS cap in the hypothesis likelihood (robust to outliers) [NIS]
+    loglik_nis_cap: float = slot(50.0, "K_GPS_MAX_LOGLIK_NIS")
     # --- solution separation (sfa.separation; docs/filter.md, "Solution separation")
     #: life of each sub-filter (one aid left out) between re-anchorings to the reported hypothesis; two
     #: per aid, half a window apart (0: no sub-filters, no separation test) [s]
-    separation_window_s: float = 0.0
+    separation_window_s: float = slot(0.0, "K_SEP_WINDOW")
     #: probability that a fault-free separation passes its chi-square test (1 dof) [-]
-    separation_probability: float = 0.99999
-    separation_hold_s: float = 30.0  #: how long a detected aid stays excluded and the interval widened [s]
+    separation_probability: float = slot(
+        0.99999, "K_SEP_GATE", lambda c: c.gate_nis(c.separation_probability, 1),
+        doc="chi-square gate on (main - sub)^2 / (P_sub - P_main), 1 dof [NIS]")
+    #: how long a detected aid stays excluded and the interval widened [s]
+    separation_hold_s: float = slot(30.0, "K_SEP_HOLD")
     #: added in quadrature to the separation's sigma: what a fault-free filter and sub-filter differ by
     #: beyond their covariances (linearisation, the reset gyro window and rewind memory, rounding; with
     #: the 4.4-sigma gate, no separation below about 0.44 m is a detection) [m]
-    separation_floor_m: float = 0.1
+    separation_floor_m: float = slot(
+        0.1, "K_SEP_FLOOR_VAR", lambda c: c.separation_floor_m ** 2,
+        doc="variance added to sigma_ss^2: separations no covariance carries [m^2]")
 
     def __post_init__(self) -> None:
         for f in fields(self):
@@ -241,93 +327,29 @@ class FilterConfig:
         return float(ndtri(0.5 + 0.5 * p))
 
     def to_array(self):
-        """The flat float64 vector the compiled kernels read (slots named in ``sfa.layout``)."""
+        """The flat float64 vector the compiled kernels read: in slot ``sfa.layout.K_*`` the value that
+        field's :func:`slot` declares (:data:`CFG_SLOTS` gives the order)."""
         import numpy as np
 
-        from sfa import layout as L
+        return np.array([float(getattr(self, name)) if value is None else value(self)
+                         for name, value in _SLOT_VALUES], dtype=np.float64)
 
-        c = np.zeros(L.NCFG)
-        c[L.K_Q_ACC] = self.accel_noise_density_mps2_rthz ** 2 + self.accel_model_noise_mps2_rthz ** 2
-        c[L.K_Q_BA] = self.accel_bias_rw_mps2_rts ** 2
-        c[L.K_Q_KO] = self.odo_scale_rw_per_rts ** 2
-        c[L.K_GM_SIGMA] = self.gps_gm_sigma_m
-        c[L.K_GM_TAU] = self.gps_gm_tau_s
-        c[L.K_Q_BG] = self.gyro_bias_rw_radps_rts ** 2
-        c[L.K_GPS_WHITE] = self.gps_white_sigma_m
-        c[L.K_GPS_NOMINAL_SIGMA_H] = self.gps_nominal_sigma_h_m
-        c[L.K_TRACK_LAT] = self.track_lateral_sigma_m
-        c[L.K_ODO_QUANT] = self.odo_quant_mps
-        c[L.K_ODO_SIGMA_MIN] = self.odo_sigma_min_mps
-        c[L.K_GATE_ODO] = self.gate_nis(self.gate_prob_odo, 1)
-        c[L.K_GATE_GPS] = self.gate_nis(self.gate_prob_gps, 2)
-        c[L.K_GATE_GYRO] = self.gate_nis(self.gate_prob_gyro, 1)
-        c[L.K_GATE_ZUPT] = self.gate_nis(self.gate_prob_zupt, 1)
-        c[L.K_GRAVITY] = self.gravity_mps2
-        c[L.K_MAX_DT] = self.max_predict_dt_s
-        c[L.K_IMU_TIMEOUT] = self.imu_timeout_s
-        c[L.K_ODO_TIMEOUT] = self.odo_timeout_s
-        c[L.K_GPS_TIMEOUT] = self.gps_timeout_s
-        c[L.K_Q_NO_IMU] = self.no_imu_accel_psd_m2ps3
-        c[L.K_ZUPT_SIGMA] = self.zupt_sigma_mps
-        c[L.K_STILL_SPEED] = self.still_speed_mps
-        c[L.K_STILL_FX_STD] = self.still_fx_std_mps2
-        c[L.K_FX_EWMA_TAU] = self.fx_ewma_tau_s
-        c[L.K_SLIP_CONFIRM_N] = self.slip_confirm_n
-        c[L.K_SLIP_RELEASE_N] = self.slip_release_n
-        c[L.K_SLIP_MAX_S] = self.slip_max_s
-        c[L.K_STEP_MIN_M] = self.step_min_m
-        c[L.K_CUSUM_K] = self.cusum_k_sigma
-        c[L.K_CUSUM_H] = self.cusum_h_sigma
-        c[L.K_CUSUM_DT] = self.cusum_min_interval_s
-        c[L.K_GPS_HOLDOFF_S] = self.gps_holdoff_s
-        c[L.K_REACQ_S] = self.reacquire_s
-        c[L.K_REACQ_CONSIST_M] = self.reacquire_consistency_m
-        c[L.K_GPS_LATE_MAX] = self.gps_late_max_s
-        c[L.K_USE_GYRO] = 1.0 if self.use_gyro else 0.0
-        c[L.K_GYRO_SIGMA] = self.gyro_sigma_radps
-        c[L.K_GYRO_MIN_SPEED] = self.gyro_min_speed_mps
-        c[L.K_Z_INTERVAL] = self.interval_z()
-        c[L.K_FAULT_SIGMA_SCALE] = self.interval_z(self.fault_confidence) / self.interval_z()
-        c[L.K_DEGRADED_SIGMA] = self.degraded_sigma_m
-        c[L.K_LOST_SIGMA] = self.lost_sigma_m
-        c[L.K_P_MIN_VAR] = self.min_variance
-        c[L.K_INIT_SIGMA_S] = self.init_sigma_s_m
-        c[L.K_INIT_SIGMA_V] = self.init_sigma_v_mps
-        c[L.K_INIT_SIGMA_BA] = self.init_sigma_accel_bias_mps2
-        c[L.K_INIT_SIGMA_KO] = self.init_sigma_odo_scale
-        c[L.K_INIT_SIGMA_BG] = self.init_sigma_gyro_bias_radps
-        c[L.K_LATE_TOL] = self.late_tolerance_s
-        c[L.K_GPS_MAX_LOGLIK_NIS] = self.loglik_nis_cap
-        c[L.K_JUNCTION_WINDOW] = self.junction_window_m
-        c[L.K_PRUNE_LOG_RATIO] = self.prune_log_ratio
-        c[L.K_SWITCH_LOG_RATIO] = self.switch_log_ratio
-        c[L.K_MAX_HYPOTHESES] = self.max_hypotheses
-        c[L.K_REVERSAL] = 1.0 if self.reversal_hypotheses else 0.0
-        c[L.K_REVERSAL_PRIOR] = self.reversal_log_prior
-        c[L.K_MAX_TIME_JUMP] = self.max_time_jump_s
-        c[L.K_SNAP_PERIOD] = self.snapshot_period_s if self.slip_rewind else -1.0
-        c[L.K_INIT_SIGMA_MY] = self.init_sigma_yaw_misalignment_rad
-        c[L.K_INIT_SIGMA_SF] = self.init_sigma_accel_scale
-        c[L.K_CURV_SIGMA] = self.curvature_sigma_inv_m
-        c[L.K_CURV_REL] = self.curvature_rel_sigma
-        c[L.K_CURV_REG_M] = self.curvature_registration_m
-        c[L.K_CURV_CORR_M] = self.curvature_corr_length_m
-        c[L.K_Q_REG] = self.registration_psd_m2pm
-        c[L.K_AD_WINDOW] = self.gps_adaptive_window_s
-        c[L.K_AD_PRIOR] = self.gps_adaptive_prior_s
-        c[L.K_GYRO_TILT] = 1.0 if self.gyro_tilt_compensation else 0.0
-        c[L.K_INIT_SIGMA_SG] = self.init_sigma_gyro_scale
-        c[L.K_Q_SG] = self.gyro_scale_rw_per_rts ** 2
-        c[L.K_INIT_SIGMA_MX] = self.init_sigma_gyro_roll_coupling_rad
-        c[L.K_GYRO_AVG_N] = self.gyro_average_samples
-        c[L.K_GYRO_AVG_MAX_S] = self.gyro_average_max_s
-        c[L.K_GYRO_AD_M] = self.gyro_curvature_adaptive_m
-        c[L.K_IMU_STUCK_N] = self.imu_stuck_samples
-        c[L.K_SLIP_BA_SIGMA] = self.slip_accel_bias_sigma_mps2
-        c[L.K_IMU_FAULT_HOLD] = self.imu_fault_hold_s
-        c[L.K_SLIP_ARB_LLR] = self.slip_arbitration_log_ratio
-        c[L.K_SEP_WINDOW] = self.separation_window_s
-        c[L.K_SEP_GATE] = self.gate_nis(self.separation_probability, 1)
-        c[L.K_SEP_HOLD] = self.separation_hold_s
-        c[L.K_SEP_FLOOR_VAR] = self.separation_floor_m ** 2
-        return c
+
+def _declared_slots(cls: type) -> tuple[tuple[str, str, Callable[[Any], float] | None], ...]:
+    """(slot name, field name, value) of every field of ``cls`` with a :func:`slot`, in declaration
+    order; a slot declared twice, or not named ``K_<UPPER>``, is an error at import."""
+    out = tuple((f.metadata["slot"], f.name, f.metadata["value"])
+                for f in fields(cls) if "slot" in f.metadata)
+    names = [s for s, _, _ in out]
+    bad = [s for s in names if not (s.startswith("K_") and s.isidentifier() and s.isupper())]
+    dup = sorted({s for s in names if names.count(s) > 1})
+    if bad or dup:
+        raise RuntimeError(f"FilterConfig slots: not K_<UPPER> {bad}, declared twice {dup}")
+    return out
+
+
+_SLOTS = _declared_slots(FilterConfig)
+_SLOT_VALUES = tuple((name, value) for _, name, value in _SLOTS)
+#: the configuration vector's slot names in order: ``sfa.layout`` defines ``K_<NAME> = index`` for each
+#: and ``NCFG = len(CFG_SLOTS)``
+CFG_SLOTS: tuple[str, ...] = tuple(s for s, _, _ in _SLOTS)

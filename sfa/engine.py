@@ -50,11 +50,12 @@ import sysconfig
 from pathlib import Path
 
 #: the engine's sources, relative to the sfa package: the kernels and every sfa module they read at
-#: compile time (layout constants are frozen into the machine code), and the builder's entry points;
-#: kernels of another package by their path from here (the listener's STROBE clock, output guard and
-#: sequence buffers)
-SOURCES = ("kernels.py", "gnss_noise.py", "layout.py", "separation.py", "bank.py", "engine_build.py",
-           "../listener/clock_core.py", "../listener/guard_core.py", "../listener/seq_core.py")
+#: compile time (layout constants are frozen into the machine code; the configuration slots K_* are
+#: numbered from sfa/config.py's declarations), and the builder's entry points; kernels of another
+#: package by their path from here (the listener's STROBE clock, output guard and sequence buffers)
+SOURCES = ("kernels.py", "gnss_noise.py", "layout.py", "config.py", "separation.py", "bank.py",
+           "engine_build.py", "../listener/clock_core.py", "../listener/guard_core.py",
+           "../listener/seq_core.py")
 #: the modules whose ``@njit`` functions the extension carries
 MODULES = ("sfa.kernels", "sfa.gnss_noise", "sfa.separation", "sfa.bank", "listener.clock_core",
            "listener.guard_core", "listener.seq_core")

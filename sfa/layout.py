@@ -2,13 +2,16 @@
 
 The compiled kernels (``sfa.kernels``) work on plain float64/int64 arrays so that the per-message
 path (``TrackFilter.process``) and the batch replay path (``sfa.batch``) run the very same code with
-no Python object in the inner loop. This module is the single place that names every slot.
-Pure constants only: importing it is cheap (no numba, no numpy).
+no Python object in the inner loop. This module is the single place that names every slot; the
+configuration slots ``K_*`` come from the fields of ``sfa.config.FilterConfig`` that declare them.
+Pure constants only: importing it is cheap (no numba, no numpy; sfa.config is standard library only).
 """
 
 from __future__ import annotations
 
 from enum import IntEnum
+
+from sfa.config import CFG_SLOTS
 
 # ---------------------------------------------------------------- state vector x (float64[NX])
 S = 0  #: arc length along the current line [m]
@@ -225,93 +228,13 @@ NH = 512  #: ring capacity [samples] (5.1 s at 100 Hz)
 NMEM = MEM_H0 + 3 * NH
 
 # ---------------------------------------------------------------- configuration vector cfg (float64[NCFG])
-K_Q_ACC = 0  #: accelerometer white noise PSD incl. model noise [m^2/s^3]
-K_Q_BA = 1  #: accelerometer bias random walk PSD [m^2/s^5]
-K_Q_KO = 2  #: odometer scale random walk PSD [1/s]
-K_GM_SIGMA = 3  #: GNSS Gauss-Markov steady sigma per axis [m]
-K_GM_TAU = 4  #: GNSS Gauss-Markov correlation time [s]
-K_Q_BG = 5  #: gyro bias random walk PSD [rad^2/s^3]
-K_GPS_WHITE = 6  #: GNSS white noise per axis at the nominal reported sigma [m]
-K_GPS_NOMINAL_SIGMA_H = 7  #: sigma_h the receiver reports in nominal conditions [m]
-K_TRACK_LAT = 8  #: cross-track uncertainty of the digitised track [m]
-K_ODO_QUANT = 9  #: odometer quantisation step [m/s]
-K_ODO_SIGMA_MIN = 10  #: floor on the odometer sigma [m/s]
-K_GATE_ODO = 11  #: chi-square gate, 1 dof [NIS]
-K_GATE_GPS = 12  #: chi-square gate, 2 dof [NIS]
-K_GATE_GYRO = 13  #: chi-square gate, 1 dof [NIS]
-K_GATE_ZUPT = 14  #: chi-square gate, 1 dof [NIS]
-K_GRAVITY = 15  #: gravity [m/s^2]
-K_MAX_DT = 16  #: longest single prediction step [s]
-K_IMU_TIMEOUT = 17  #: [s]
-K_ODO_TIMEOUT = 18  #: [s]
-K_GPS_TIMEOUT = 19  #: [s]
-K_Q_NO_IMU = 20  #: acceleration PSD used while the IMU is timed out [m^2/s^3]
-K_ZUPT_SIGMA = 21  #: zero-velocity pseudo-measurement sigma [m/s]
-K_STILL_SPEED = 22  #: odometer speed below which standstill may be declared [m/s]
-K_STILL_FX_STD = 23  #: IMU forward specific-force std below which standstill may be declared [m/s^2]
-K_FX_EWMA_TAU = 24  #: time constant of the IMU mean/variance estimator [s]
-K_SLIP_CONFIRM_N = 25  #: consecutive gated odometer samples that declare a slip
-K_SLIP_RELEASE_N = 26  #: consecutive in-gate samples that end it
-K_SLIP_MAX_S = 27  #: longest slip before the odometer is re-anchored [s]
-K_STEP_MIN_M = 28  #: smallest GNSS innovation classified as a step [m]
-K_CUSUM_K = 29  #: CUSUM drift allowance [sigma]
-K_CUSUM_H = 30  #: CUSUM decision threshold [sigma]
-K_GPS_HOLDOFF_S = 31  #: GNSS hold-off after a ramp detection [s]
-K_REACQ_S = 32  #: duration of consistent GNSS rejections that re-anchors the position [s]
-K_REACQ_CONSIST_M = 33  #: largest drift of the rejected residual still counted as consistent [m]
-K_GPS_LATE_MAX = 34  #: oldest GNSS fix still applied by back-propagation [s]
-K_USE_GYRO = 35  #: 1 to use gz = v * curvature(s) + b_g
-K_GYRO_SIGMA = 36  #: gyro white noise per sample incl. model error [rad/s]
-K_GYRO_MIN_SPEED = 37  #: smallest speed for the gyro update [m/s]
-K_Z_INTERVAL = 38  #: two-sided normal quantile of the confidence interval [-]
-K_DEGRADED_SIGMA = 39  #: sigma_s above which the status is DEGRADED [m]
-K_LOST_SIGMA = 40  #: sigma_s above which the status is LOST [m]
-K_P_MIN_VAR = 41  #: smallest variance kept on the diagonal [unit^2]
-K_INIT_SIGMA_S = 42  #: [m]
-K_INIT_SIGMA_V = 43  #: [m/s]
-K_INIT_SIGMA_BA = 44  #: [m/s^2]
-K_INIT_SIGMA_KO = 45  #: [-]
-K_INIT_SIGMA_BG = 46  #: [rad/s]
-K_LATE_TOL = 47  #: measurements older than the state by less than this are treated as simultaneous [s]
-K_GPS_MAX_LOGLIK_NIS = 48  #: NIS cap when scoring hypotheses (robust likelihood) [NIS]
-K_SNAP_PERIOD = 49  #: period of the rewind snapshots [s]
-K_INIT_SIGMA_MY = 50  #: [rad]
-K_INIT_SIGMA_SF = 51  #: [-]
-K_CURV_SIGMA = 52  #: curvature-model error of the database [1/m]
-K_GYRO_TILT = 53  #: 1: the gyro update uses the roll-compensated yaw rate (accelerometer + track curvature)
-K_INIT_SIGMA_SG = 54  #: initial gyro scale-factor sigma [-]
-K_Q_SG = 55  #: gyro scale-factor random walk PSD [1/s]
-K_INIT_SIGMA_MX = 56  #: initial sigma of the yaw gyro's roll-rate coupling [rad]
-K_IMU_STUCK_N = 57  #: bit-identical consecutive IMU samples that declare the IMU stuck (0: off) [samples]
-K_SLIP_BA_SIGMA = 58  #: accelerometer bias sigma added when a slip outlasts slip_max_s [m/s^2]
-K_IMU_FAULT_HOLD = 59  #: how long a declared accelerometer fault stays reported [s]
-K_GYRO_AVG_N = 60  #: IMU samples averaged into one gyro update [samples]
-K_GYRO_AVG_MAX_S = 61  #: longest span of one gyro window [s]
-K_SLIP_ARB_LLR = 62  #: GNSS log-likelihood ratio that decides a slip against an accelerometer fault [-]
-#: reported sigma factor while a sensor is faulty or missing: z(fault_confidence) / z(confidence) [-]
-K_FAULT_SIGMA_SCALE = 63
-K_CURV_REL = 64  #: curvature error as a fraction of the database's curvature [-]
-K_CURV_REG_M = 65  #: along-track registration uncertainty of the curvature profile [m]
-K_CURV_CORR_M = 66  #: along-track correlation length of the curvature error [m]
-K_Q_REG = 67  #: map registration: arc-length random walk per metre travelled [m^2/m]
-K_AD_WINDOW = 68  #: memory of the adaptive GNSS error statistics (0: the preset's model, fixed) [s]
-K_AD_PRIOR = 69  #: weight of the preset's model in those statistics, as seconds of data [s]
-K_CUSUM_DT = 70  #: GNSS fixes closer than this count as a fraction dt / this of one in the CUSUM [s]
-# the hypothesis bank's rules (sfa.bank): scoring, pruning, reversals, junction windows, time jumps
-K_JUNCTION_WINDOW = 71  #: distance before a junction at which branch hypotheses are spawned [m]
-K_PRUNE_LOG_RATIO = 72  #: log-likelihood lead that prunes a hypothesis [-]
-K_SWITCH_LOG_RATIO = 73  #: lead another hypothesis needs to become the reported one [-]
-K_MAX_HYPOTHESES = 74  #: most line / direction hypotheses kept at once [-]
-K_REVERSAL = 75  #: 1: at standstill also keep the reversed sense of travel
-K_MAX_TIME_JUMP = 76  #: a measurement further ahead of the state needs confirming [s]
-K_GYRO_AD_M = 77  #: memory of the learned curvature-error scale, in metres travelled (0: fixed at 1) [m]
-K_REVERSAL_PRIOR = 78  #: log prior odds against a reversal at a standstill (the mirror starts behind) [-]
-# solution separation (sfa.separation)
-K_SEP_WINDOW = 79  #: life of a sub-filter between re-anchorings (two per aid, staggered by half) (0: off) [s]
-K_SEP_GATE = 80  #: chi-square gate on (main - sub)^2 / (P_sub - P_main), 1 dof [NIS]
-K_SEP_HOLD = 81  #: how long GNSS stays excluded, or the interval widened, after a detection [s]
-K_SEP_FLOOR_VAR = 82  #: variance added to sigma_ss^2: separations no covariance carries [m^2]
-NCFG = 83
+# K_<NAME> = index for every slot, numbered in the order the FilterConfig fields declare them
+# (sfa.config.CFG_SLOTS: each field's ``slot(...)``, where its meaning and unit are documented, and
+# FilterConfig.to_array fills them). Set here as plain module globals like the indices above: numba
+# reads ``K_*`` as compile-time constants, benchmarks/c/cref.py writes them into the C header, and
+# sfa.engine keys the compiled engine on sfa/config.py too. Use them by name, never by number.
+globals().update({_name: _i for _i, _name in enumerate(CFG_SLOTS)})
+NCFG = len(CFG_SLOTS)
 
 # ---------------------------------------------------------------- measurement kinds and result codes
 M_IMU = 1

@@ -49,6 +49,11 @@ def test_layout_header_names_every_slot_with_its_value():
         "R_SLIP",
     ):
         assert f"#define {name} {getattr(L, name)}\n" in header
+    from sfa.config import CFG_SLOTS
+
+    for i, name in enumerate(CFG_SLOTS):  # every configuration slot, numbered from FilterConfig
+        assert f"#define {name} {i}\n" in header
+    assert f"#define NCFG {len(CFG_SLOTS)}\n" in header
     assert f"#define NVALS {batch.NV}\n" in header
 
 
