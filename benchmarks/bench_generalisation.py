@@ -3,8 +3,8 @@
 See tools/bench_generalisation.py for the families (as-built truth paths, actual sensor errors drawn
 per seed, the filter on the datasheet presets and the database of the source geometry).
 
-Usage: python benchmarks/bench_generalisation.py [--seeds 20] [--family NAME ...] [--jobs 2]
-       [--duration 300] [--step 0.5] [--set FIELD=VALUE ...]
+Usage: python benchmarks/bench_generalisation.py [--seeds 20] [--first-seed 0] [--family NAME ...]
+       [--jobs 2] [--duration 300] [--step 0.5] [--set FIELD=VALUE ...]
 """
 
 from __future__ import annotations
@@ -26,6 +26,8 @@ def main(argv: list[str] | None = None) -> int:
 
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--seeds", type=int, default=20, help="seeds per family (default 20)")
+    ap.add_argument("--first-seed", type=int, default=0,
+                    help="first seed (default 0): seeds first..first+seeds-1, e.g. held-out worlds")
     ap.add_argument("--family", action="append", help="family to run (repeatable; default: all)")
     ap.add_argument("--jobs", type=int, default=1, help="parallel processes (default 1)")
     ap.add_argument("--duration", type=float, default=300.0, help="simulated seconds per run (default 300)")
@@ -35,8 +37,8 @@ def main(argv: list[str] | None = None) -> int:
                          "repeatable), e.g. --set cusum_h_sigma=1e9")
     args = ap.parse_args(argv)
     names = args.family or [f.name for f in FAMILIES]
-    if args.seeds < 1 or args.jobs < 1 or args.duration <= 0 or args.step <= 0:
-        ap.error("--seeds and --jobs must be >= 1, --duration and --step > 0")
+    if args.seeds < 1 or args.jobs < 1 or args.duration <= 0 or args.step <= 0 or args.first_seed < 0:
+        ap.error("--seeds and --jobs must be >= 1, --first-seed >= 0, --duration and --step > 0")
     try:
         overrides = parse_field_values(args.set)
         datasheet_config_for().replace(**overrides)  # unknown fields and bad values fail here, not per run
@@ -44,10 +46,12 @@ def main(argv: list[str] | None = None) -> int:
         ap.error(str(exc))
     t0 = time.time()
     rows = run_families(names, args.seeds, args.jobs, args.step, args.duration,
-                        log=lambda m: print(m, file=sys.stderr), overrides=overrides)
+                        log=lambda m: print(m, file=sys.stderr), overrides=overrides,
+                        first_seed=args.first_seed)
     print(markdown_table(rows))
-    print(f"\n{args.seeds} seeds x {len(names)} families, first {args.duration:g} s of each run, "
-          f"errors every {args.step:g} s; {time.time() - t0:.0f} s", file=sys.stderr)
+    print(f"\n{args.seeds} seeds (from {args.first_seed}) x {len(names)} families, "
+          f"first {args.duration:g} s of each run, errors every {args.step:g} s; {time.time() - t0:.0f} s",
+          file=sys.stderr)
     return 0
 
 

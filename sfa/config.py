@@ -141,6 +141,11 @@ class FilterConfig:
     gps_adaptive_window_s: float = slot(0.0, "K_AD_WINDOW")
     #: weight of the values above in those estimates, as seconds of data [s]
     gps_adaptive_prior_s: float = slot(30.0, "K_AD_PRIOR")
+    #: longest correlation time the adaptive model may fit (the top of its logarithmic grid from
+    #: sfa.gnss_noise.TAU_MIN_S): beyond a few tens of seconds the cross-track moments it fits are
+    #: dominated by the map's own lateral error, which at train speeds decorrelates over tens of
+    #: seconds too (docs/filter.md, "Adaptive GNSS error model") [s]
+    gps_adaptive_tau_max_s: float = slot(1000.0, "K_AD_TAU_MAX")
     # --- gates (probability that a fault-free measurement passes)
     #: odometer gate, chi-square 1 dof [probability]
     gate_prob_odo: float = slot(0.9999, "K_GATE_ODO", lambda c: c.gate_nis(c.gate_prob_odo, 1),
@@ -289,6 +294,12 @@ class FilterConfig:
             raise FilterConfigError(
                 "gps_adaptive_prior_s must be > 0 when the GNSS model adapts, "
                 f"got {self.gps_adaptive_prior_s!r}")
+        from sfa.layout import AD_TAU_MIN_S  # (sfa.layout imports this module: not at the top)
+
+        if not self.gps_adaptive_tau_max_s > AD_TAU_MIN_S:
+            raise FilterConfigError(
+                f"gps_adaptive_tau_max_s must be > {AD_TAU_MIN_S} s (the start of the correlation-time "
+                f"grid), got {self.gps_adaptive_tau_max_s!r}")
         if self.gyro_average_samples < 1 or self.gyro_average_samples != int(self.gyro_average_samples):
             raise FilterConfigError(
                 f"gyro_average_samples must be an integer >= 1, got {self.gyro_average_samples!r}")

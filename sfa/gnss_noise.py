@@ -53,7 +53,9 @@ from sfa.layout import (
     AD_HIST_SPACING_S,
     AD_LAGS_S,
     AD_NMOM,
+    AD_TAU_MIN_S,
     K_AD_PRIOR,
+    K_AD_TAU_MAX,
     K_AD_WINDOW,
     K_GM_SIGMA,
     K_GM_TAU,
@@ -75,8 +77,9 @@ FLOOR_WHITE = 1.0
 #: neither sigma goes above this multiple of the receiver's mean reported sigma_h: where the map's own
 #: lateral error dominates the residual (RTK on a digitised map), the residual says little about GNSS
 CEILING = 4.0
-TAU_MIN_S = 1.0  #: the correlation-time grid: TAU_N values, logarithmic from TAU_MIN_S to TAU_MAX_S
-TAU_MAX_S = 1000.0
+#: the correlation-time grid: TAU_N values, logarithmic from TAU_MIN_S to the configuration's
+#: gps_adaptive_tau_max_s (K_AD_TAU_MAX)
+TAU_MIN_S = AD_TAU_MIN_S
 TAU_N = 25
 
 
@@ -157,7 +160,7 @@ def fit(aux, cfg):
     best = math.inf
     best_tau = cfg[K_GM_TAU]
     best_s2 = 0.0
-    step = (math.log(TAU_MAX_S) - math.log(TAU_MIN_S)) / (TAU_N - 1)
+    step = (math.log(cfg[K_AD_TAU_MAX]) - math.log(TAU_MIN_S)) / (TAU_N - 1)
     for g in range(TAU_N):
         tau = math.exp(math.log(TAU_MIN_S) + g * step)
         num = 0.0

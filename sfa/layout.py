@@ -140,6 +140,9 @@ A_AD_FREEZE = A_AD_HI + 1
 A_AD_HIST = A_AD_FREEZE + 1
 AD_HIST = 110  #: history entries (covers AD_HIST x AD_HIST_SPACING_S seconds, beyond the longest lag)
 AD_HIST_SPACING_S = 1.0  #: spacing of the history entries [s]
+#: start of the correlation-time grid the model is fitted over (its top: FilterConfig
+#: gps_adaptive_tau_max_s) [s]
+AD_TAU_MIN_S = 1.0
 #: Scale of the curvature-model variance (>= 1), learned from the gyro innovations when K_GYRO_AD_M > 0
 #: (docs/filter.md, "Curvature error"): like the GNSS model, one value for every hypothesis, the
 #: reported one's (it lies inside gnss_noise.share's range, and the bank copies it to the others before

@@ -137,3 +137,20 @@ def test_frozen_statistics_do_not_learn():
     aux[L.A_AD_FREEZE] = 0.0
     _feed(aux, cfg, _receiver(300, 1.0, 2.0, 10.0, 1.0, seed=2) + 3.0, 1.0)
     assert aux[L.A_GM_SIG] > 1.0  # unfrozen, the same fixes widen it (from the preset's 0.6 m)
+
+
+def test_tau_max_bounds_the_fitted_correlation_time():
+    """gps_adaptive_tau_max_s is the top of the fitted grid: a 60 s receiver is fitted near 60 s with the
+    default top and at the top with a lower one; the grid's values stay within [TAU_MIN_S, top]."""
+    c = _receiver(1800, 1.0, 0.8, 60.0, 0.5, seed=7)
+    fitted = {}
+    for top in (1000.0, 20.0):
+        cfg = _cfg(gps_adaptive_tau_max_s=top)
+        aux = np.zeros(L.NAUX)
+        G.reset(aux, cfg)
+        _feed(aux, cfg, c, 1.0)
+        fitted[top] = _model(aux)[1]
+    assert 30.0 <= fitted[1000.0] <= 120.0
+    assert fitted[20.0] == pytest.approx(20.0)
+    with pytest.raises(Exception, match="gps_adaptive_tau_max_s"):
+        FilterConfig(gps_adaptive_tau_max_s=G.TAU_MIN_S)

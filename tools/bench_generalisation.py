@@ -164,11 +164,14 @@ def run_one(args: tuple) -> dict:
 
 
 def run_families(names, seeds: int, jobs: int = 1, step_s: float = 0.5, max_duration_s: float | None = 300.0,
-                 log=print, overrides: dict | None = None) -> list[dict]:
-    """Every (family, seed) run, then one summary row per family. ``overrides``: FilterConfig fields set
-    on top of the datasheet configuration (an ablation; the baselines keep theirs)."""
+                 log=print, overrides: dict | None = None, first_seed: int = 0) -> list[dict]:
+    """Every (family, seed) run, seeds ``first_seed`` to ``first_seed + seeds - 1``, then one summary
+    row per family. ``overrides``: FilterConfig fields set on top of the datasheet configuration (an
+    ablation; the baselines keep theirs). A ``first_seed`` past the seeds a change was chosen on gives
+    held-out worlds to check it on."""
     items = tuple(sorted((overrides or {}).items()))
-    tasks = [(n, s, step_s, max_duration_s, items) for n in names for s in range(seeds)]
+    seed_range = range(first_seed, first_seed + seeds)
+    tasks = [(n, s, step_s, max_duration_s, items) for n in names for s in seed_range]
     if jobs > 1:
         import multiprocessing as mp
 

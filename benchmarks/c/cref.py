@@ -75,7 +75,7 @@ def layout_header() -> str:
 
     # the adaptive GNSS model's constants, written with repr (the same doubles), prefixed GN_
     for name in ("LAG_TOL_S", "MIN_NORMAL_DOT", "MIN_PAIR_DISTANCE_M", "CLIP_SIGMA", "FLOOR_GM",
-                 "FLOOR_WHITE", "CEILING", "TAU_MIN_S", "TAU_MAX_S", "TAU_N"):
+                 "FLOOR_WHITE", "CEILING", "TAU_MIN_S", "TAU_N"):
         lines.append(f"#define GN_{name} {getattr(gnss_noise, name)!r}")
     from sfa.kernels import COS_MAX_ROLL, GPS_IEKF_ITERATIONS, GPS_IEKF_TOL_M, GYRO_LAM_MAX, GYRO_LAM_PRIOR
 

@@ -125,7 +125,7 @@ static void gn_accumulate(double *aux, int i, double value, double lag, double h
 
 static void gn_fit(double *aux, const double *cfg) {
     double best = INFINITY, best_tau = cfg[K_GM_TAU], best_s2 = 0.0;
-    double step = (log(GN_TAU_MAX_S) - log(GN_TAU_MIN_S)) / (GN_TAU_N - 1);
+    double step = (log(cfg[K_AD_TAU_MAX]) - log(GN_TAU_MIN_S)) / (GN_TAU_N - 1);
     for (int g = 0; g < GN_TAU_N; g++) {
         double tau = exp(log(GN_TAU_MIN_S) + g * step);
         double num = 0.0, den = 0.0;
