@@ -4,7 +4,7 @@ See tools/bench_generalisation.py for the families (as-built truth paths, actual
 per seed, the filter on the datasheet presets and the database of the source geometry).
 
 Usage: python benchmarks/bench_generalisation.py [--seeds 20] [--first-seed 0] [--family NAME ...]
-       [--jobs 2] [--duration 300] [--step 0.5] [--set FIELD=VALUE ...]
+       [--jobs 2] [--duration 300] [--step 0.5] [--real | --no-real] [--set FIELD=VALUE ...]
 """
 
 from __future__ import annotations
@@ -20,7 +20,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 def main(argv: list[str] | None = None) -> int:
     from sfa.errors import FilterConfigError
     from sfa.presets import datasheet_config_for
-    from tools.bench_generalisation import FAMILIES, markdown_table, run_families
+    from tools.bench_generalisation import FAMILIES, REAL_DATA, markdown_table, real_data_row, run_families
     from tools.errors import ToolError
     from tools.field_values import parse_field_values
 
@@ -32,6 +32,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--jobs", type=int, default=1, help="parallel processes (default 1)")
     ap.add_argument("--duration", type=float, default=300.0, help="simulated seconds per run (default 300)")
     ap.add_argument("--step", type=float, default=0.5, help="error sampling step [s] (default 0.5)")
+    ap.add_argument("--real", action=argparse.BooleanOptionalAction, default=None,
+                    help="also the real-data rows, smartLoc (real and synthesised GNSS) and Dresden "
+                         "(default: on when every family runs)")
     ap.add_argument("--set", action="append", default=[], metavar="FIELD=VALUE",
                     help="FilterConfig field on top of the datasheet presets, for SFA only (an ablation; "
                          "repeatable), e.g. --set cusum_h_sigma=1e9")
@@ -48,6 +51,8 @@ def main(argv: list[str] | None = None) -> int:
     rows = run_families(names, args.seeds, args.jobs, args.step, args.duration,
                         log=lambda m: print(m, file=sys.stderr), overrides=overrides,
                         first_seed=args.first_seed)
+    if args.real if args.real is not None else not args.family:
+        rows += [real_data_row(r[0], overrides, log=lambda m: print(m, file=sys.stderr)) for r in REAL_DATA]
     print(markdown_table(rows))
     print(f"\n{args.seeds} seeds (from {args.first_seed}) x {len(names)} families, "
           f"first {args.duration:g} s of each run, errors every {args.step:g} s; {time.time() - t0:.0f} s",

@@ -111,7 +111,8 @@ def run(args: argparse.Namespace) -> int:
             if "generalisation" in only:
                 from tools.bench_generalisation import generalisation_rows
 
-                rows += generalisation_rows(1 if quick else 20, 120.0 if quick else 300.0, log=log)
+                rows += generalisation_rows(1 if quick else 20, 120.0 if quick else 300.0, log=log,
+                                            real=not quick)
             if "replay" in only:
                 from tools.bench_replay import replay_rows
 

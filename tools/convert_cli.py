@@ -95,12 +95,11 @@ def run(args: argparse.Namespace) -> int:
     if not args.evaluate:
         return 0
 
-    from dataclasses import replace
-
     from listener.config import ListenerConfig
     from sfa.errors import FilterConfigError
     from sfa.presets import config_for
     from tools.adapters.evaluate import (
+        listener_config_for,
         read_truth,
         run_pipeline,
         self_consistency,
@@ -110,14 +109,12 @@ def run(args: argparse.Namespace) -> int:
     from tools.field_values import parse_field_values
 
     overrides = parse_field_values(args.eval_set, "--eval-set")
-    lcfg = ListenerConfig()
+    lcfg = listener_config_for(conv, ListenerConfig())
     sel = lcfg.filter
     try:
         fcfg = config_for(args.eval_presets or sel.presets, sel.imu, sel.odometer, sel.gps, **overrides)
     except FilterConfigError as exc:
         raise ToolError(f"--eval-set: {exc}") from None
-    if hold is not None:
-        lcfg = replace(lcfg, merge=replace(lcfg.merge, hold_s=float(hold)))
     excluded = frozenset(MODULE_PORTS[m] for m in args.eval_without)
     reference = read_truth(conv.truth if conv.truth is not None else Path(conv.out_dir) / "gnss_on_track.csv")
     gap = None

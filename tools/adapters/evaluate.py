@@ -30,6 +30,21 @@ UPDATE_FIELDS = ("epoch", "kind", "outcome", "nis", "arc_length", "speed", "sigm
                  "hypotheses", "accel_bias", "odo_scale", "gyro_bias")
 
 
+def listener_config_for(conv, config=None):
+    """The listener configuration a converted capture is evaluated with: ``config`` (default: the
+    listener's defaults) with the merge hold-off its metadata.json recommends, if any."""
+    import json
+
+    from listener.config import ListenerConfig
+
+    cfg = config or ListenerConfig()
+    meta = json.loads(Path(conv.metadata).read_text(encoding="utf-8"))
+    hold = meta.get("recommended_listener", {}).get("merge.hold_s")
+    if hold is not None:
+        cfg = replace(cfg, merge=replace(cfg.merge, hold_s=float(hold)))
+    return cfg
+
+
 def run_pipeline(capture: str | Path, track_path: str | Path, config=None, port: int | None = None,
                  filter_config=None, exclude_ports: frozenset[int] = frozenset(),
                  gps_gap: tuple[float, float] | None = None,
