@@ -449,6 +449,41 @@ def test_loss_duplicates_and_reordering_take_the_compiled_path(sim, strobe_dated
     assert_same(exact, fast)
 
 
+def test_senders_restarting_take_the_compiled_path(strobe_dated, tmp_path):
+    """The IMU, odometer and GNSS interface modules restart mid-run (STROBE-dated capture): each falls
+    silent for 0.8 s and comes back numbering from a new start, behind or far ahead of where it was,
+    with 1 % loss, duplicates and reordering throughout. The listener's sequence buffers put each
+    restarted sender on probation and resynchronise it; the compiled replay takes every datagram after
+    the hand-over through those same buffers and gives the exact replay's outputs bit for bit."""
+    dgrams = strobe_dated["dgrams"]
+    t0 = dgrams[0][0]
+    # type: (restart time [s], first number after it): behind by more than max_backward, or far ahead
+    restarts = {1: (20.0, 7), 2: (28.0, 60000), 3: (35.0, 30000)}
+    first_seq: dict[int, int] = {}
+    out = []
+    for t, addr, payload in dgrams:
+        kind = payload[0]
+        if kind in restarts:
+            at, start = restarts[kind]
+            if at <= t - t0 < at + 0.8:
+                continue  # the module is down
+            if t - t0 >= at + 0.8:
+                seq = struct.unpack_from("<H", payload, 1)[0]
+                first_seq.setdefault(kind, seq)
+                renumbered = (start + seq - first_seq[kind]) & 0xFFFF
+                payload = payload[:1] + struct.pack("<H", renumbered) + payload[3:]
+        out.append((t, addr, payload))
+    cap = tmp_path / "restarts.pcap"
+    write_capture(cap, lossy(out))
+    opts = ReplayOptions(config=ListenerConfig(filter=strobe_dated["sel"]))
+    exact = replay_capture(cap, strobe_dated["track"], opts)
+    fast, info = try_fast_replay(cap, strobe_dated["track"], opts)
+    assert info.used, info.reason
+    assert exact.metrics["sequencing"]["resyncs"] >= 3
+    assert info.compiled > 0.99 * fast.datagrams
+    assert_same(exact, fast)
+
+
 def test_sequence_repair_through_junctions_and_held_jumps(tram, tmp_path):
     """The Jena tram with 1 % loss, duplicates and reordering: junction hand-overs to TrackFilter and
     forward jumps the buffers hold as suspects (listener.seqbuf's trust rules) in one capture."""
