@@ -215,15 +215,16 @@ def real_data_row(label: str, overrides: dict | None = None, log=print) -> dict:
     """One row of real recorded data, in the form of a family row: the bundled log converted
     (``sfa convert``) into a temporary directory, SFA run through the listener's pipeline core with the
     listener's default filter (``sfa convert ... --evaluate``'s path) and with the gyro's map matching
-    on, the plain FilterPy EKF and odometer dead reckoning on the measurements the replay dates. With
-    truth (smartLoc) the errors are against it; without (Dresden) the SFA figures are the estimate's
-    distance from each GNSS fix projected on the track (a self-consistency check) and the baselines
-    are not given (the EKF would be judged against the fixes it is fed)."""
+    on, and the baselines of ``sfa replay --truth`` (``tools.baselines``: the plain FilterPy EKF with
+    FilterConfig's defaults, its best configuration on these logs, and odometer dead reckoning) on the
+    measurements the replay dates. With truth (smartLoc) the errors are against it; without (Dresden)
+    the SFA figures are the estimate's distance from each GNSS fix projected on the track (a
+    self-consistency check) and the baselines are not given (the EKF would be judged against the fixes
+    it is fed)."""
     import tempfile
     from dataclasses import replace as dc_replace
 
     from listener.config import ListenerConfig
-    from sfa import baselines
     from sfa.presets import config_for
     from tools.accuracy import accuracy
     from tools.adapters.evaluate import (
@@ -233,6 +234,7 @@ def real_data_row(label: str, overrides: dict | None = None, log=print) -> dict:
         self_consistency,
         truth_figures,
     )
+    from tools.baselines import baseline_estimates
     from tools.replay import ReplayOptions, replay_capture
     from track_db import TrackDatabase
 
@@ -266,14 +268,13 @@ def real_data_row(label: str, overrides: dict | None = None, log=print) -> dict:
                 row[f"{key}_max"] = fig["along_track_residual_max_m"]
                 row[f"{key}_coverage"] = math.nan
             log(f"generalisation: {label} {key}")
-        if truth:
+        if truth:  # the baselines of `sfa replay --truth` (tools.baselines), on the measurements it dates
             track = TrackDatabase.open(conv.track)
             meas = replay_capture(conv.capture, track, dc_replace(
                 ReplayOptions(config=lcfg), record_measurements=True)).measurements
-            for key, res in (("plain-ekf", baselines.plain_filterpy_ekf(track, meas, cfg)),
-                             ("odo-dr", baselines.odometer_dead_reckoning(meas))):
-                ok = np.isfinite(res.epoch_s) & np.isfinite(res.arc_length_m)
-                a = accuracy(res.epoch_s[ok], res.arc_length_m[ok], reference["epoch"],
+            base = baseline_estimates(track, meas)
+            for key, name in (("plain-ekf", "plain FilterPy EKF"), ("odo-dr", "odometer dead reckoning")):
+                a = accuracy(base[name]["epoch"], base[name]["arc_length"], reference["epoch"],
                              reference["arc_length"])
                 row[f"{key}_p95"], row[f"{key}_max"] = a.p95_m, a.max_m
             track.close()
