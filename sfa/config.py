@@ -142,9 +142,9 @@ class FilterConfig:
     #: weight of the values above in those estimates, as seconds of data [s]
     gps_adaptive_prior_s: float = slot(30.0, "K_AD_PRIOR")
     #: longest correlation time the adaptive model may fit (the top of its logarithmic grid from
-    #: sfa.gnss_noise.TAU_MIN_S): beyond a few tens of seconds the cross-track moments it fits are
-    #: dominated by the map's own lateral error, which at train speeds decorrelates over tens of
-    #: seconds too (docs/filter.md, "Adaptive GNSS error model") [s]
+    #: sfa.layout.AD_TAU_MIN_S). An ablation knob: a lower top (20 s) was better on the generalisation
+    #: benchmark's seeds 0-7 and refuted on seeds 8-19 (docs/filter.md, session 14), so every preset
+    #: keeps 1000 s [s]
     gps_adaptive_tau_max_s: float = slot(1000.0, "K_AD_TAU_MAX")
     # --- gates (probability that a fault-free measurement passes)
     #: odometer gate, chi-square 1 dof [probability]

@@ -230,6 +230,7 @@ def real_data_row(label: str, overrides: dict | None = None, log=print) -> dict:
     from tools.adapters.evaluate import (
         listener_config_for,
         read_truth,
+        recommended_hold_s,
         run_pipeline,
         self_consistency,
         truth_figures,
@@ -253,7 +254,7 @@ def real_data_row(label: str, overrides: dict | None = None, log=print) -> dict:
             from tools.adapters.dresden import DresdenConfig, convert_dresden
 
             conv = convert_dresden(None, tmp, DresdenConfig())
-        lcfg = listener_config_for(conv)
+        lcfg = listener_config_for(recommended_hold_s(conv))
         truth = conv.truth is not None
         reference = read_truth(conv.truth if truth else conv.out_dir / "gnss_on_track.csv")
         for key, c in (("sfa", cfg), ("sfa-gyro", cfg.replace(use_gyro=True))):

@@ -60,7 +60,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    import json
     import math
     from pathlib import Path
 
@@ -84,8 +83,9 @@ def run(args: argparse.Namespace) -> int:
         conv = convert_dresden(args.src, args.out, cfg, overwrite=args.force)
     print(f"convert {args.source}: {conv.packets} datagrams "
           f"({', '.join(f'{k} {v}' for k, v in conv.by_module.items())}) -> {conv.out_dir}")
-    meta = json.loads(Path(conv.metadata).read_text(encoding="utf-8"))
-    hold = meta.get("recommended_listener", {}).get("merge.hold_s")
+    from tools.adapters.evaluate import listener_config_for, recommended_hold_s
+
+    hold = recommended_hold_s(conv)
     replay = f"sfa replay {conv.capture} --track {conv.track} --out REPLAY_DIR"
     if conv.truth is not None:
         replay += f" --truth {conv.truth}"
@@ -99,7 +99,6 @@ def run(args: argparse.Namespace) -> int:
     from sfa.errors import FilterConfigError
     from sfa.presets import config_for
     from tools.adapters.evaluate import (
-        listener_config_for,
         read_truth,
         run_pipeline,
         self_consistency,
@@ -109,7 +108,7 @@ def run(args: argparse.Namespace) -> int:
     from tools.field_values import parse_field_values
 
     overrides = parse_field_values(args.eval_set, "--eval-set")
-    lcfg = listener_config_for(conv, ListenerConfig())
+    lcfg = listener_config_for(hold, ListenerConfig())
     sel = lcfg.filter
     try:
         fcfg = config_for(args.eval_presets or sel.presets, sel.imu, sel.odometer, sel.gps, **overrides)

@@ -30,18 +30,25 @@ UPDATE_FIELDS = ("epoch", "kind", "outcome", "nis", "arc_length", "speed", "sigm
                  "hypotheses", "accel_bias", "odo_scale", "gyro_bias")
 
 
-def listener_config_for(conv, config=None):
-    """The listener configuration a converted capture is evaluated with: ``config`` (default: the
-    listener's defaults) with the merge hold-off its metadata.json recommends, if any."""
+def recommended_hold_s(conv) -> float | None:
+    """The merge hold-off [s] a converted capture's metadata.json recommends for the listener (None:
+    none recommended)."""
     import json
 
+    meta = json.loads(Path(conv.metadata).read_text(encoding="utf-8"))
+    hold = meta.get("recommended_listener", {}).get("merge.hold_s")
+    return None if hold is None else float(hold)
+
+
+def listener_config_for(hold_s: float | None, config=None):
+    """The listener configuration a converted capture is evaluated with: ``config`` (default: the
+    listener's defaults) with the merge hold-off its metadata.json recommends (``hold_s``, from
+    :func:`recommended_hold_s`; None: unchanged)."""
     from listener.config import ListenerConfig
 
     cfg = config or ListenerConfig()
-    meta = json.loads(Path(conv.metadata).read_text(encoding="utf-8"))
-    hold = meta.get("recommended_listener", {}).get("merge.hold_s")
-    if hold is not None:
-        cfg = replace(cfg, merge=replace(cfg.merge, hold_s=float(hold)))
+    if hold_s is not None:
+        cfg = replace(cfg, merge=replace(cfg.merge, hold_s=float(hold_s)))
     return cfg
 
 
