@@ -286,6 +286,7 @@ def test_bench_quick_writes_a_complete_table(tmp_path):
     )
     gen = find("generalisation", "jena-tram", "p95")
     assert "plain FilterPy EKF" in gen["compared"] and "odometer only" in gen["compared"]
+    assert "information bound" in gen["compared"]
     fast = find("replay", "fast replay end to end")
     assert "identical to the exact replay: True" in fast["compared"]
     # issue 17's must-show capture: STROBE-dated, with the losses, duplicates and reorderings it repaired

@@ -7,6 +7,7 @@ import math
 import numpy as np
 
 from tools import bench_generalisation as G
+from tools.info_bound import expected_p95
 
 
 def test_first_seed_selects_held_out_worlds():
@@ -21,6 +22,17 @@ def test_first_seed_selects_held_out_worlds():
     assert held["sfa_max"] == pooled.max()
     assert held["sfa_p95"] == float(np.percentile(pooled, 95))
     assert held["sfa_max"] != first["sfa_max"]
+    # the information bound's column pools the same seeds' bound sigmas (tools.info_bound)
+    assert held["bound_p95"] == expected_p95(np.concatenate([r["bound-sigma"] for r in runs]))
+    assert all(r["bound-sigma"].shape == r["sfa"].shape for r in runs)
+
+
+def test_the_bound_uses_the_worlds_gnss_error():
+    """The bound of a run is computed from the seed's drawn GNSS error: a larger drawn error, a larger
+    bound (jena seed 0 draws sigma_g 1.43 m, tau 118 s; seed 16 draws 0.58 m, 5.8 s)."""
+    big = G.run_one(("jena-tram", 0, 0.5, 120.0, ()))["bound-sigma"]
+    small = G.run_one(("jena-tram", 16, 0.5, 120.0, ()))["bound-sigma"]
+    assert expected_p95(small) < 0.8 * expected_p95(big)
 
 
 def test_real_data_rows_smartloc_and_dresden():

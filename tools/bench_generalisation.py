@@ -154,6 +154,7 @@ def run_one(args: tuple) -> dict:
         err = np.abs(est[ok, 1] - np.interp(est[ok, 0], te, ts))
         out[key] = err
         out[f"{key}-covered"] = err <= c.interval_z() * est[ok, 2]
+    out["bound-sigma"] = run_bound_sigma(run, track, meas, sc, grid)
     for key, res in (("plain-ekf", baselines.plain_filterpy_ekf(track, meas, cfg)),
                      ("odo-dr", baselines.odometer_dead_reckoning(meas))):
         b = acc.sample_baseline(res, grid)
@@ -163,12 +164,33 @@ def run_one(args: tuple) -> dict:
     return out
 
 
+def run_bound_sigma(run, track, meas, sc, grid) -> np.ndarray:
+    """The information bound's along-track sigma at the grid times (tools.info_bound): the optimal
+    estimator that knows the world's GNSS error model and odometer scale distribution, with a perfect
+    map and an odometer perfect but for its scale."""
+    from sfa.measurements import GpsMeas
+    from tools.info_bound import GnssErrorModel, along_track_sigma
+
+    te = run.truth["epoch"]
+    s_true = np.interp(grid, te, run.truth["arc_length"])
+    speed = np.interp(grid, te, np.abs(run.truth["speed"]))
+    line = track.line(int(run.truth["line_id"][0]))
+    tangent = np.column_stack(line.tangent_at(s_true))
+    fixes = np.array([m.t_s for m in meas if isinstance(m, GpsMeas) and m.fix_quality != 0
+                      and math.isfinite(m.lat_deg + m.lon_deg)])
+    gps, odo = dict(sc.gps.actual), dict(sc.odometer.actual)
+    model = GnssErrorModel(float(gps["gm_sigma_m"]), float(gps["gm_tau_s"]), float(gps["white_sigma_m"]))
+    return along_track_sigma(grid, speed, tangent, np.sort(fixes), model, float(odo["scale_sigma"]))
+
+
 def run_families(names, seeds: int, jobs: int = 1, step_s: float = 0.5, max_duration_s: float | None = 300.0,
                  log=print, overrides: dict | None = None, first_seed: int = 0) -> list[dict]:
     """Every (family, seed) run, seeds ``first_seed`` to ``first_seed + seeds - 1``, then one summary
     row per family. ``overrides``: FilterConfig fields set on top of the datasheet configuration (an
     ablation; the baselines keep theirs). A ``first_seed`` past the seeds a change was chosen on gives
     held-out worlds to check it on."""
+    from tools.info_bound import expected_p95
+
     items = tuple(sorted((overrides or {}).items()))
     seed_range = range(first_seed, first_seed + seeds)
     tasks = [(n, s, step_s, max_duration_s, items) for n in names for s in seed_range]
@@ -195,6 +217,7 @@ def run_families(names, seeds: int, jobs: int = 1, step_s: float = 0.5, max_dura
             row[f"{key}_max"] = float(np.max(e))
         for key in ("sfa", "sfa-gyro"):
             row[f"{key}_coverage"] = float(np.mean(np.concatenate([r[f"{key}-covered"] for r in rs])))
+        row["bound_p95"] = expected_p95(np.concatenate([r["bound-sigma"] for r in rs]))
         row["samples"] = int(sum(r["sfa"].size for r in rs))
         rows.append(row)
     return rows
@@ -291,8 +314,8 @@ def _cell(value: float, fmt: str) -> str:
 
 def markdown_table(rows: list[dict]) -> str:
     head = ("| family | seeds | SFA p95 / max [m] | 95 % coverage | SFA + gyro p95 / max, coverage | "
-            "plain EKF p95 [m] | odometer DR p95 [m] | plain EKF / SFA |")
-    lines = [head, "|" + "---|" * 8]
+            "plain EKF p95 [m] | odometer DR p95 [m] | plain EKF / SFA | bound p95 [m] |")
+    lines = [head, "|" + "---|" * 9]
     for r in rows:
         ratio = r["plain-ekf_p95"] / r["sfa_p95"] if r["sfa_p95"] > 0 else math.inf
         cov, gcov = 100 * r["sfa_coverage"], 100 * r["sfa-gyro_coverage"]
@@ -300,7 +323,8 @@ def markdown_table(rows: list[dict]) -> str:
             f"| {r['family']} | {r['seeds']} | {r['sfa_p95']:.3f} / {r['sfa_max']:.3f} | "
             f"{_cell(cov, '.1f')} % | {r['sfa-gyro_p95']:.3f} / {r['sfa-gyro_max']:.3f}, "
             f"{_cell(gcov, '.1f')} % | {_cell(r['plain-ekf_p95'], '.3f')} | "
-            f"{_cell(r['odo-dr_p95'], '.2f')} | {_cell(ratio, '.2f')}x |")
+            f"{_cell(r['odo-dr_p95'], '.2f')} | {_cell(ratio, '.2f')}x | "
+            f"{_cell(r.get('bound_p95', math.nan), '.3f')} |")
     return "\n".join(lines)
 
 
@@ -329,7 +353,8 @@ def generalisation_rows(seeds: int, max_duration_s: float, log=print, real: bool
             r["sfa_p95"], "m",
             compared=(f"plain FilterPy EKF {r['plain-ekf_p95']:.3f} m "
                       f"({r['plain-ekf_p95'] / r['sfa_p95']:.2f}x); SFA + gyro {r['sfa-gyro_p95']:.3f} m; "
-                      f"odometer only {r['odo-dr_p95']:.2f} m; SFA max {r['sfa_max']:.3f} m"),
+                      f"odometer only {r['odo-dr_p95']:.2f} m; SFA max {r['sfa_max']:.3f} m; "
+                      f"information bound (GNSS + odometer, tools.info_bound) {r['bound_p95']:.3f} m"),
             target=("<= plain EKF" + (f" and <= {limit:g} m" if limit is not None else "")),
             met=met, repeats=seeds,
             note="" if met else ("worse than the plain EKF" if not beats else f"above {limit:g} m"),

@@ -1,0 +1,136 @@
+"""The information bound: how small an along-track error any filter can reach from GNSS and odometer.
+
+A filter's accuracy target means something only beside what the data allow. This module computes,
+for one simulated run, the error covariance of the *optimal* estimator of a relaxed problem that
+knows strictly more than any real filter:
+
+- the train starts exactly where the GROUND TRUTH puts it (as the benchmark's filters do);
+- the odometer is perfect except for its scale factor ``k``, constant, drawn from the world's own
+  distribution ``N(0, scale_sigma^2)`` (no white noise, no slip, no quantisation);
+- the GNSS error is exactly the world's model and the filter knows its parameters: per axis a
+  first-order Gauss-Markov error (sigma_g, tau) plus white noise sigma_w, at the fix times the
+  receiver really delivered (outages included);
+- the map is exact (no as-built offset) and the heading along the path is known.
+
+State ``[ds, dk, g_e, g_n]``: position error along the track [m], odometer scale error [-], the GNSS
+correlated error east and north [m]. Between fixes ``ds += v dt dk``; the Gauss-Markov states decay by
+``exp(-dt / tau)``. A fix measures ``t ds + g + w`` (t: the unit tangent in east/north). The model is
+linear and Gaussian, so the Kalman filter's covariance is the minimum mean-square error of every
+causal estimator of it (the Bayesian Cramer-Rao bound is attained); a real filter, which must also
+learn the parameters and live with odometer noise and a wrong map, can only do worse. Only the
+covariance is propagated: no data are drawn.
+
+What the bound leaves out: the map's shape as a position source (the gyro against the track's
+curvature or heading), and the IMU as an odometer calibrator. Both are outside GNSS and odometer; a
+filter that beats the bound must be getting position from them.
+
+``expected_p95`` turns the per-sample sigmas into the p95 of the pooled |error| an estimator at the
+bound would show: the x with mean_j P(|N(0, sigma_j^2)| > x) = 5 %.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.special import erfc
+
+DS, DK, GE, GN = 0, 1, 2, 3  #: state indices: along-track error, odometer scale error, GNSS GM east, north
+
+
+@dataclass(frozen=True)
+class GnssErrorModel:
+    """The world's GNSS error, per horizontal axis."""
+
+    gm_sigma_m: float  #: correlated (Gauss-Markov) error, steady sigma [m]
+    gm_tau_s: float  #: its correlation time [s]
+    white_sigma_m: float  #: white error sigma [m]
+
+
+def along_track_sigma(
+    t_s: np.ndarray,
+    speed_mps: np.ndarray,
+    tangent_en: np.ndarray,
+    fix_t_s: np.ndarray,
+    gnss: GnssErrorModel,
+    odo_scale_sigma: float,
+    init_sigma_m: float = 0.0,
+    fix_z_en: np.ndarray | None = None,
+) -> np.ndarray | tuple[np.ndarray, np.ndarray]:
+    """Sigma of the optimal along-track error at each time ``t_s`` (sorted) [m].
+
+    ``speed_mps`` and ``tangent_en`` (n x 2, unit east/north) are the truth's at ``t_s``; from one
+    sample to the next the earlier sample's speed and tangent hold. ``fix_t_s``: times of the usable
+    fixes (sorted). A fix at a sample time is applied before that sample's sigma is taken.
+
+    With ``fix_z_en`` (one east/north row per fix: the fix minus the odometer's track point) the
+    filter also runs on those data and the estimate of ``ds`` at each time is returned beside the
+    sigma (``(sigma, ds_hat)``): the check that the covariance is the error the model really makes.
+    """
+    t_s = np.asarray(t_s, dtype=float)
+    fix_t_s = np.asarray(fix_t_s, dtype=float)
+    sg2 = gnss.gm_sigma_m ** 2
+    p = np.diag([init_sigma_m ** 2, odo_scale_sigma ** 2, sg2, sg2])
+    x = np.zeros(4)
+    r = np.eye(2) * gnss.white_sigma_m ** 2
+    sigma = np.empty(t_s.size)
+    ds_hat = np.empty(t_s.size)
+    t_now = float(t_s[0]) if t_s.size else 0.0
+    j = int(np.searchsorted(fix_t_s, t_now, side="left"))
+
+    def predict(to: float, k_seg: int) -> None:
+        nonlocal p, x, t_now
+        dt = to - t_now
+        if dt <= 0.0:
+            return
+        f = np.eye(4)
+        f[DS, DK] = speed_mps[k_seg] * dt  # ds += v dt dk: the odometer's scale error integrates
+        phi = math.exp(-dt / gnss.gm_tau_s)
+        f[GE, GE] = f[GN, GN] = phi  # g <- exp(-dt / tau) g
+        q = np.zeros((4, 4))
+        q[GE, GE] = q[GN, GN] = sg2 * (1.0 - phi * phi)  # keeps the GM error's steady variance
+        x = f @ x
+        p = f @ p @ f.T + q
+        t_now = to
+
+    for i in range(t_s.size):
+        while j < fix_t_s.size and fix_t_s[j] <= t_s[i]:
+            k_seg = max(int(np.searchsorted(t_s, fix_t_s[j], side="right")) - 1, 0)
+            # within [t_s[i-1], fix]: the segment of sample i-1 (the fix never precedes t_s[0])
+            predict(float(fix_t_s[j]), max(min(k_seg, i - 1), 0))
+            h = np.zeros((2, 4))
+            h[:, DS] = tangent_en[max(min(k_seg, i - 1), 0)]  # the along-track error moves the fix
+            h[0, GE] = h[1, GN] = 1.0  # plus the correlated error
+            s = h @ p @ h.T + r
+            k = p @ h.T @ np.linalg.inv(s)
+            if fix_z_en is not None:
+                x = x + k @ (fix_z_en[j] - h @ x)
+            ikh = np.eye(4) - k @ h
+            p = ikh @ p @ ikh.T + k @ r @ k.T  # Joseph form
+            j += 1
+        predict(float(t_s[i]), max(i - 1, 0))
+        sigma[i] = math.sqrt(max(p[DS, DS], 0.0))
+        ds_hat[i] = x[DS]
+    return sigma if fix_z_en is None else (sigma, ds_hat)
+
+
+def expected_p95(sigmas: np.ndarray, q: float = 0.95) -> float:
+    """p95 of the pooled |error| of zero-mean Gaussian errors with these sigmas [m] (bisection)."""
+    sig = np.asarray(sigmas, dtype=float)
+    sig = sig[np.isfinite(sig)]
+    if sig.size == 0:
+        return math.nan
+    top = float(sig.max())
+    if top <= 0.0:
+        return 0.0
+    safe = np.where(sig > 0.0, sig, 1.0)
+    lo, hi = 0.0, 10.0 * top
+    for _ in range(100):
+        mid = 0.5 * (lo + hi)
+        tail = np.where(sig > 0.0, erfc(mid / (math.sqrt(2.0) * safe)), 0.0).mean()  # P(|e| > x)
+        if tail > 1.0 - q:
+            lo = mid
+        else:
+            hi = mid
+    return 0.5 * (lo + hi)
