@@ -50,3 +50,4 @@ def test_real_data_rows_smartloc_and_dresden():
     table = G.markdown_table([sl, dr])
     line = next(ln for ln in table.splitlines() if ln.startswith("| dresden "))
     assert "| - |" in line and "nan" not in line
+    assert "- %" not in line and "-x" not in line  # no unit after a missing value

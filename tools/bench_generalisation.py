@@ -308,8 +308,9 @@ def real_data_row(label: str, overrides: dict | None = None, log=print) -> dict:
     return row
 
 
-def _cell(value: float, fmt: str) -> str:
-    return "-" if not math.isfinite(value) else format(value, fmt)
+def _cell(value: float, fmt: str, unit: str = "") -> str:
+    """The value in ``fmt`` followed by ``unit``; "-" (no unit) where there is none."""
+    return "-" if not math.isfinite(value) else format(value, fmt) + unit
 
 
 def markdown_table(rows: list[dict]) -> str:
@@ -321,9 +322,10 @@ def markdown_table(rows: list[dict]) -> str:
         cov, gcov = 100 * r["sfa_coverage"], 100 * r["sfa-gyro_coverage"]
         lines.append(
             f"| {r['family']} | {r['seeds']} | {r['sfa_p95']:.3f} / {r['sfa_max']:.3f} | "
-            f"{_cell(cov, '.1f')} % | {r['sfa-gyro_p95']:.3f} / {r['sfa-gyro_max']:.3f}, "
-            f"{_cell(gcov, '.1f')} % | {_cell(r['plain-ekf_p95'], '.3f')} | "
-            f"{_cell(r['odo-dr_p95'], '.2f')} | {_cell(ratio, '.2f')}x | "
+            f"{_cell(cov, '.1f', ' %')} | {r['sfa-gyro_p95']:.3f} / {r['sfa-gyro_max']:.3f}"
+            f"{', ' + _cell(gcov, '.1f', ' %') if math.isfinite(gcov) else ''} | "
+            f"{_cell(r['plain-ekf_p95'], '.3f')} | "
+            f"{_cell(r['odo-dr_p95'], '.2f')} | {_cell(ratio, '.2f', 'x')} | "
             f"{_cell(r.get('bound_p95', math.nan), '.3f')} |")
     return "\n".join(lines)
 
