@@ -136,13 +136,15 @@ def same_track(g, h, X, AUX, IDX, G, LOFF, window):
 
 
 @njit(cache=True, _nrt=False, error_model="numpy")
-def score(order, nh, AUX, slot, cap):
-    """The hypotheses' score update (before the prune): loglik -= min(NIS, cap) / 2 with the NIS in
-    ``slot``; a NIS that is not a number counts as the cap (the worst a measurement scores)."""
+def score(order, nh, AUX, slot, cap, weight):
+    """The hypotheses' score update (before the prune): loglik -= weight min(NIS, cap) / 2 with the NIS
+    in ``slot``; a NIS that is not a number counts as the cap (the worst a measurement scores).
+    ``weight`` is the share of an independent measurement's evidence the measurement carries (1, or
+    for GNSS the CUSUM's rate weight, see run_segment)."""
     for j in range(nh):
         h = order[j]
         nis = AUX[h, slot]
-        AUX[h, L.A_LOGLIK] -= 0.5 * (nis if nis < cap else cap)
+        AUX[h, L.A_LOGLIK] -= weight * 0.5 * (nis if nis < cap else cap)
 
 
 @njit(cache=True, _nrt=False, error_model="numpy")
@@ -362,6 +364,7 @@ def run_segment(kind, t, vals, i0, stop_jumps, X, PP, AUX, CNT, MEM, IDX, order,
                     AUX[order[j], q] = AUX[order[rep], q]
         code = K.O_INVALID
         accepted = False
+        t_gps_prev = AUX[order[rep], L.A_T_GPS]  # the previous fix in use (the step below moves it)
         # solution separation's GNSS exclusion (one decision for the bank, kept in every hypothesis's
         # aux): a valid fix goes to no hypothesis
         skip = separating and k == 3 and SEP.gnss_excluded(AUX[order[rep]], ti) and v[3] != 0.0 \
@@ -403,10 +406,17 @@ def run_segment(kind, t, vals, i0, stop_jumps, X, PP, AUX, CNT, MEM, IDX, order,
                     if AUX[h, L.A_GYRO_OK] != 0.0:
                         any_on = True
                 if all_ok and any_on:
-                    score(order, nh, AUX, L.A_LAST_NIS_GYRO, cap)
+                    score(order, nh, AUX, L.A_LAST_NIS_GYRO, cap, 1.0)
                     prune(order, ns, X, AUX, IDX, G, LOFF, LLEN, cfg, work_i, work_f)
             elif accepted:  # a measurement every hypothesis rejects is a sensor fault, not evidence
-                score(order, nh, AUX, L.A_LAST_NIS_ODO if k == 2 else L.A_LAST_NIS_GPS, cap)
+                # a fix dt after the previous one in use carries min(1, dt / cusum_min_interval_s) of an
+                # independent fix's evidence, the CUSUM's rule (kernels.step_gps): a 10 Hz receiver's
+                # fixes share their correlated error and the map's, and counted one by one they pruned
+                # the right branch within 1.5 s of a diverging junction (tests/test_wrong_branch_recovery)
+                wt = 1.0
+                if k == 3 and cfg[L.K_CUSUM_DT] > 0.0 and math.isfinite(t_gps_prev):
+                    wt = min(1.0, max(ti - t_gps_prev, 0.0) / cfg[L.K_CUSUM_DT])
+                score(order, nh, AUX, L.A_LAST_NIS_ODO if k == 2 else L.A_LAST_NIS_GPS, cap, wt)
                 prune(order, ns, X, AUX, IDX, G, LOFF, LLEN, cfg, work_i, work_f)
         if k == 2 and cfg[L.K_REVERSAL] != 0.0 and AUX[order[ns[1]], L.A_STILL] != 0.0:
             if spawn_reversals(order, ns, X, PP, AUX, CNT, MEM, IDX, cfg):

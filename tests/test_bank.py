@@ -104,9 +104,12 @@ def test_a_nis_that_is_not_a_number_scores_as_the_cap():
     bank.AUX[0, L.A_LAST_NIS_ODO] = math.nan
     bank.AUX[1, L.A_LAST_NIS_ODO] = 3.0
     bank.AUX[:2, L.A_LOGLIK] = -1.0
-    score(bank.order, 2, bank.AUX, L.A_LAST_NIS_ODO, 50.0)
+    score(bank.order, 2, bank.AUX, L.A_LAST_NIS_ODO, 50.0, 1.0)
     assert bank.AUX[0, L.A_LOGLIK] == -1.0 - 25.0
     assert bank.AUX[1, L.A_LOGLIK] == -1.0 - 1.5
+    score(bank.order, 2, bank.AUX, L.A_LAST_NIS_ODO, 50.0, 0.1)  # a tenth of an independent fix
+    assert bank.AUX[0, L.A_LOGLIK] == -1.0 - 25.0 - 2.5
+    assert bank.AUX[1, L.A_LOGLIK] == -1.0 - 1.5 - 0.15
 
 
 def test_the_bank_grows_when_spawning_needs_room():
