@@ -409,13 +409,10 @@ def run_segment(kind, t, vals, i0, stop_jumps, X, PP, AUX, CNT, MEM, IDX, order,
                     score(order, nh, AUX, L.A_LAST_NIS_GYRO, cap, 1.0)
                     prune(order, ns, X, AUX, IDX, G, LOFF, LLEN, cfg, work_i, work_f)
             elif accepted:  # a measurement every hypothesis rejects is a sensor fault, not evidence
-                # a fix dt after the previous one in use carries min(1, dt / cusum_min_interval_s) of an
-                # independent fix's evidence, the CUSUM's rule (kernels.step_gps): a 10 Hz receiver's
-                # fixes share their correlated error and the map's, and counted one by one they pruned
-                # the right branch within 1.5 s of a diverging junction (tests/test_wrong_branch_recovery)
-                wt = 1.0
-                if k == 3 and cfg[L.K_CUSUM_DT] > 0.0 and math.isfinite(t_gps_prev):
-                    wt = min(1.0, max(ti - t_gps_prev, 0.0) / cfg[L.K_CUSUM_DT])
+                # a fix carries the share of an independent fix's evidence the CUSUM gives it
+                # (kernels.gps_evidence_weight): a 10 Hz receiver's fixes counted one by one pruned the
+                # right branch within 1.5 s of a diverging junction (tests/test_wrong_branch_recovery)
+                wt = K.gps_evidence_weight(ti, t_gps_prev, cfg) if k == 3 else 1.0
                 score(order, nh, AUX, L.A_LAST_NIS_ODO if k == 2 else L.A_LAST_NIS_GPS, cap, wt)
                 prune(order, ns, X, AUX, IDX, G, LOFF, LLEN, cfg, work_i, work_f)
         if k == 2 and cfg[L.K_REVERSAL] != 0.0 and AUX[order[ns[1]], L.A_STILL] != 0.0:

@@ -1329,6 +1329,18 @@ def step_odo(x, P, aux, cnt, mem, cfg, ts, tg, t, speed, sigma):
 
 # ============================================================== GNSS
 @njit(cache=True, inline="always", _nrt=False, error_model="numpy")
+def gps_evidence_weight(t, t_prev, cfg):
+    """The share of an independent fix's evidence a fix at t carries, t_prev the previous fix in use:
+    min(1, (t - t_prev) / cusum_min_interval_s); 1 with that interval 0 or no previous fix. Fixes
+    faster than that share their correlated error (and the map's): the ramp CUSUM (step_gps) and the
+    hypotheses' score (sfa.bank.run_segment) weight them by it."""
+    dt = cfg[K_CUSUM_DT]
+    if dt <= 0.0 or not math.isfinite(t_prev):
+        return 1.0
+    return min(1.0, max(t - t_prev, 0.0) / dt)
+
+
+@njit(cache=True, inline="always", _nrt=False, error_model="numpy")
 def gps_invalid(t, east, north, sigma_h):
     """A GNSS fix no step may use (counted invalid): non-finite, beyond 1e7 m, sigma_h > 1e4 m or infinite."""
     return not (math.isfinite(t) and math.isfinite(east) and math.isfinite(north)) \
@@ -1504,7 +1516,7 @@ def step_gps(x, P, aux, cnt, cfg, ts, te, tn, tg, t, east, north, sigma_h, fix_q
     k = cfg[K_CUSUM_K]
     # a fix dt after the previous one in use adds min(1, dt / cusum_min_interval_s) of an independent
     # fix's evidence (weighted CUSUM): the detector's run lengths do not shrink with the fix rate
-    wt = min(1.0, max(t - aux[A_T_GPS], 0.0) / cfg[K_CUSUM_DT]) if cfg[K_CUSUM_DT] > 0.0 else 1.0
+    wt = gps_evidence_weight(t, aux[A_T_GPS], cfg)
     if aux[A_SLIP] != 0.0:
         # while the odometer is out for a slip GNSS is the only aid, and there is no reference to tell a
         # ramp from the accelerometer's drift: nothing accumulates (nor fires the moment the slip ends)
