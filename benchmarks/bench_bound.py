@@ -22,7 +22,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 def main(argv: list[str] | None = None) -> int:
     import numpy as np
 
-    from tools.info_bound import GnssErrorModel, along_track_sigma, expected_p95
+    from tools.info_bound import GnssErrorModel, expected_p95, sigma_on_line
     from track_db import TrackDatabase
 
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
@@ -55,16 +55,13 @@ def main(argv: list[str] | None = None) -> int:
     db = TrackDatabase.open(args.track)
     line = db.line(args.line if args.line is not None else db.default_line_id)
     grid = np.arange(te[0], te[-1], args.step)
-    s = np.interp(grid, te, ts)
-    tangent = np.column_stack(line.tangent_at(np.clip(s, 0.0, line.length_m)))
     fixes = np.arange(te[0] + 1.0 / args.rate, te[-1], 1.0 / args.rate)
     s_fix = np.interp(fixes, te, ts)
     keep = np.ones(fixes.size, dtype=bool)
     for a, b in args.outage:
         keep &= ~((s_fix >= min(a, b)) & (s_fix <= max(a, b)))
     model = GnssErrorModel(args.gm_sigma, args.gm_tau, args.white)
-    sigma = along_track_sigma(grid, np.abs(np.interp(grid, te, tv)), tangent, fixes[keep], model,
-                              args.odo_scale_sigma)
+    sigma = sigma_on_line(line, grid, te, ts, tv, fixes[keep], model, args.odo_scale_sigma)
     db.close()
     first = grid - grid[0] <= args.first
     print(f"information bound p95 (GNSS sigma_g {args.gm_sigma:g} m, tau {args.gm_tau:g} s, white "

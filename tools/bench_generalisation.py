@@ -169,18 +169,14 @@ def run_bound_sigma(run, track, meas, sc, grid) -> np.ndarray:
     estimator that knows the world's GNSS error model and odometer scale distribution, with a perfect
     map and an odometer perfect but for its scale."""
     from sfa.measurements import GpsMeas
-    from tools.info_bound import GnssErrorModel, along_track_sigma
+    from tools.info_bound import GnssErrorModel, sigma_on_line
 
-    te = run.truth["epoch"]
-    s_true = np.interp(grid, te, run.truth["arc_length"])
-    speed = np.interp(grid, te, np.abs(run.truth["speed"]))
-    line = track.line(int(run.truth["line_id"][0]))
-    tangent = np.column_stack(line.tangent_at(s_true))
-    fixes = np.array([m.t_s for m in meas if isinstance(m, GpsMeas) and m.fix_quality != 0
-                      and math.isfinite(m.lat_deg + m.lon_deg)])
+    fixes = [m.t_s for m in meas if isinstance(m, GpsMeas) and m.fix_quality != 0
+             and math.isfinite(m.lat_deg + m.lon_deg)]
     gps, odo = dict(sc.gps.actual), dict(sc.odometer.actual)
     model = GnssErrorModel(float(gps["gm_sigma_m"]), float(gps["gm_tau_s"]), float(gps["white_sigma_m"]))
-    return along_track_sigma(grid, speed, tangent, np.sort(fixes), model, float(odo["scale_sigma"]))
+    return sigma_on_line(track.line(int(run.truth["line_id"][0])), grid, run.truth["epoch"],
+                         run.truth["arc_length"], run.truth["speed"], fixes, model, float(odo["scale_sigma"]))
 
 
 def run_families(names, seeds: int, jobs: int = 1, step_s: float = 0.5, max_duration_s: float | None = 300.0,

@@ -95,12 +95,11 @@ def along_track_sigma(
         t_now = to
 
     for i in range(t_s.size):
+        seg = max(i - 1, 0)  # a fix in (t_s[i-1], t_s[i]] lies on sample i-1's segment
         while j < fix_t_s.size and fix_t_s[j] <= t_s[i]:
-            k_seg = max(int(np.searchsorted(t_s, fix_t_s[j], side="right")) - 1, 0)
-            # within [t_s[i-1], fix]: the segment of sample i-1 (the fix never precedes t_s[0])
-            predict(float(fix_t_s[j]), max(min(k_seg, i - 1), 0))
+            predict(float(fix_t_s[j]), seg)
             h = np.zeros((2, 4))
-            h[:, DS] = tangent_en[max(min(k_seg, i - 1), 0)]  # the along-track error moves the fix
+            h[:, DS] = tangent_en[seg]  # the along-track error moves the fix
             h[0, GE] = h[1, GN] = 1.0  # plus the correlated error
             s = h @ p @ h.T + r
             k = p @ h.T @ np.linalg.inv(s)
@@ -109,10 +108,21 @@ def along_track_sigma(
             ikh = np.eye(4) - k @ h
             p = ikh @ p @ ikh.T + k @ r @ k.T  # Joseph form
             j += 1
-        predict(float(t_s[i]), max(i - 1, 0))
+        predict(float(t_s[i]), seg)
         sigma[i] = math.sqrt(max(p[DS, DS], 0.0))
         ds_hat[i] = x[DS]
     return sigma if fix_z_en is None else (sigma, ds_hat)
+
+
+def sigma_on_line(line, t_s, truth_t_s, truth_s_m, truth_speed_mps, fix_t_s, gnss: GnssErrorModel,
+                  odo_scale_sigma: float) -> np.ndarray:
+    """:func:`along_track_sigma` at the times ``t_s`` of a truth (times, arc lengths on ``line`` of
+    track_db, speeds) sampled there: the speed's magnitude, the line's tangent at the truth's arc length."""
+    s = np.clip(np.interp(t_s, truth_t_s, truth_s_m), 0.0, line.length_m)
+    speed = np.abs(np.interp(t_s, truth_t_s, truth_speed_mps))
+    tangent = np.column_stack(line.tangent_at(s))
+    return along_track_sigma(t_s, speed, tangent, np.sort(np.asarray(fix_t_s, dtype=float)), gnss,
+                             odo_scale_sigma)
 
 
 def expected_p95(sigmas: np.ndarray, q: float = 0.95) -> float:
