@@ -199,7 +199,8 @@ class FilterConfig:
     cusum_k_sigma: float = slot(0.5, "K_CUSUM_K")
     cusum_h_sigma: float = slot(8.0, "K_CUSUM_H")  #: CUSUM decision threshold [sigma]
     #: k and h are per independent fix: fixes closer than this count as the fraction dt / this of one (a
-    #: receiver's errors are correlated over about a second, so 10 Hz fixes are not 10x the evidence) [s]
+    #: receiver's errors are correlated over about a second, so 10 Hz fixes are not 10x the evidence);
+    #: the line hypotheses' GNSS score weights fixes the same way (sfa.kernels.gps_evidence_weight) [s]
     cusum_min_interval_s: float = slot(1.0, "K_CUSUM_DT")
     gps_holdoff_s: float = slot(20.0, "K_GPS_HOLDOFF_S")  #: GNSS fixes ignored after a ramp detection [s]
     #: duration of self-consistent GNSS rejections that re-anchor the position [s]
