@@ -337,8 +337,9 @@ def run_segment(kind, t, vals, i0, stop_jumps, X, PP, AUX, CNT, MEM, IDX, order,
     other than IMU, odometer, GNSS, or with ``stop_jumps`` one further ahead of the state than
     ``K_MAX_TIME_JUMP``, which the time-jump rule of ``TrackFilter.process`` looks at); STOP_AFTER with
     i the measurement after which a hypothesis is within ``K_JUNCTION_WINDOW`` of a junction it has not
-    branched at (or at an arc length that is not finite): the caller spawns the branches, then applies
-    the output rule to i.
+    branched at (or at an arc length that is not finite), or after which the reported hypothesis asks
+    for a relocalisation (``A_RELOC``): the caller relocalises and spawns the branches, then applies the
+    output rule to i.
     """
     n = kind.shape[0]
     window = cfg[L.K_JUNCTION_WINDOW]
@@ -439,6 +440,12 @@ def run_segment(kind, t, vals, i0, stop_jumps, X, PP, AUX, CNT, MEM, IDX, order,
                 for q in range(lo, hi):
                     if s - window <= JS[q] <= s + window:
                         return i, STOP_AFTER
+        if k == 3:  # a relocalisation request (kernels.step_gps): only the reported hypothesis's counts
+            for j in range(ns[0]):
+                if j != ns[1]:
+                    AUX[order[j], L.A_RELOC] = 0.0
+            if AUX[order[ns[1]], L.A_RELOC] != 0.0:
+                return i, STOP_AFTER
         if emitting:
             emit(i, X, PP, AUX, IDX, order, ns, cfg, LID, fresh_min, last, m_time, e_f, e_i, ost, seq0)
     return n, DONE

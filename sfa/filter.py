@@ -160,8 +160,8 @@ class TrackFilter:
         columns, :class:`sfa.bank.RunOutput`). Stops before a row ``process`` must take: a GROUND TRUTH
         or another kind, a row the time-jump rule looks at, any row while the filter is not initialised
         or a time jump waits for confirmation; the caller runs ``process`` on it, then :meth:`emit`.
-        Junction branches are spawned here. Returns (the first row not processed, the rows after which
-        branches were spawned)."""
+        Relocalisations and junction branches are made here. Returns (the first row not processed, the
+        rows after which the loop stopped for them)."""
         if not self.initialised or not math.isnan(self._jump_candidate):
             return i0, 0
         i = i0
@@ -171,7 +171,7 @@ class TrackFilter:
             if why != STOP_AFTER:
                 return i, branched
             branched += 1
-            self._spawn_branches()  # the last statement of process(), then the row's output
+            self._after_stop()  # the last statement of process(), then the row's output
             self.emit(i, out)
             i += 1
 
@@ -355,7 +355,7 @@ class TrackFilter:
         out = self._out1
         _, why = self._bank.run(self._kind1, self._t1, self._vals1, 0, False, self._cfg, out)
         if why == STOP_AFTER:
-            self._spawn_branches()
+            self._after_stop()
         return int(out.u_out[0]), float(out.u_nis[0])
 
     def _process_imu(self, m: ImuMeas) -> Update:
@@ -483,6 +483,70 @@ class TrackFilter:
         """(junction key, s on the line) of every junction on ``line_id`` (the bank's junction windows)."""
         entry = self._junction_map().get(line_id)
         return [] if entry is None else [(key, s) for key, s, _, _ in entry[1]]
+
+    def _after_stop(self) -> None:
+        """What the bank's loop stops for (STOP_AFTER): a relocalisation, then the junction branches."""
+        self._relocalise()
+        self._spawn_branches()
+
+    def _relocalise(self) -> None:
+        """The reported hypothesis rejected every fix for ``reacquire_s`` and the fixes did not agree
+        along its line (kernels.step_gps set A_RELOC): it may be on the wrong line (a branch chosen at a
+        diverging junction before the lines had parted) or lost along its own. Add a hypothesis where the
+        run's last fix projects onto each line of the network within the GNSS gate of it: the parent's
+        state with the arc length of the projection (its variance the fix's along-track error), the
+        GNSS error state restarted, the parent's score. The GNSS score then keeps whichever the fixes
+        agree with, as at a junction; the parent stays alive until then."""
+        b = self._bank
+        rep = b.reported
+        if b.AUX[rep, L.A_RELOC] == 0.0:
+            return
+        b.AUX[rep, L.A_RELOC] = 0.0
+        east, north = float(b.AUX[rep, L.A_RELOC_E]), float(b.AUX[rep, L.A_RELOC_N])
+        if not (math.isfinite(east) and math.isfinite(north)):
+            return
+        b.CNT[rep, L.C_RELOC] += 1
+        cfg = self._cfg
+        gm, gw = float(b.AUX[rep, L.A_GM_SIG]), float(b.AUX[rep, L.A_GW_SIG])
+        var_fix = gm * gm + gw * gw + float(cfg[L.K_TRACK_LAT]) ** 2  # per axis [m^2]
+        radius = math.sqrt(float(cfg[L.K_GATE_GPS]) * var_fix)
+        parent = b.line(rep)
+        d = b.direction(rep)
+        _, _, pde, pdn = K.geom_at(parent.s_m, parent.east_m, parent.north_m, float(b.X[rep, L.S]))
+        new: list[int] = []
+        for info in self._track.lines():
+            try:
+                s_proj, offset = self._track.line(info.line_id).project(east, north)
+                line = self.line_arrays(info.line_id)
+            except self._track_errors:
+                continue
+            s_proj, offset = float(s_proj), float(offset)
+            if not abs(offset) <= radius:
+                continue
+            if line.line_id == parent.line_id and abs(s_proj - float(b.X[rep, L.S])) < 1.0:
+                continue  # where the parent already is
+            _, _, de, dn = K.geom_at(line.s_m, line.east_m, line.north_m, s_proj)
+            same_way = d * (de * pde + dn * pdn) >= 0.0  # the train's heading along this line's arc length
+            g = b.new_slot(new)
+            keys = b.spawned(rep) if line.line_id == parent.line_id else frozenset()
+            self._copy_to(rep, g, line, s_proj, keys, flip=(d > 0) != same_way)
+            x, P = b.X[g], b.PP[g]
+            for i in (L.S, L.GE, L.GN):  # re-anchored on the fix: no correlation with the rest
+                P[i, :] = 0.0
+                P[:, i] = 0.0
+            P[L.S, L.S] = var_fix
+            P[L.GE, L.GE] = P[L.GN, L.GN] = gm * gm
+            x[L.GE] = x[L.GN] = 0.0
+            aux = b.AUX[g]
+            aux[L.A_GPS_REJ] = 0.0
+            aux[L.A_STEP_FLAG] = 0.0
+            aux[L.A_CUSUM_P] = aux[L.A_CUSUM_N] = 0.0
+            new.append(g)
+        if new:
+            b.set_live(b.slots() + new, int(b.ns[1]))
+            b.empty_gyro_windows()
+            b.prune(cfg)
+        b.compact()
 
     def _spawn_branches(self) -> None:
         """Add a hypothesis on every line that branches off within the look-ahead window."""

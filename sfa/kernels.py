@@ -75,6 +75,9 @@ from sfa.layout import (
     A_RAMP_T,
     A_REJ_DS,
     A_REJ_MAXDEV,
+    A_RELOC,
+    A_RELOC_E,
+    A_RELOC_N,
     A_SEG,
     A_SLIP,
     A_SLIP_BAD,
@@ -190,6 +193,7 @@ from sfa.layout import (
     K_Q_SG,
     K_REACQ_CONSIST_M,
     K_REACQ_S,
+    K_RELOC,
     K_SLIP_ARB_LLR,
     K_SLIP_BA_SIGMA,
     K_SLIP_CONFIRM_N,
@@ -1435,6 +1439,10 @@ def step_gps(x, P, aux, cnt, cfg, ts, te, tn, tg, t, east, north, sigma_h, fix_q
     # arc-length variance would never re-admit a fix past a curve
     y = np.zeros(2)
     s_lin = x[S]
+    # the linearisation point stays where the prior admits the train: within the gate's sigmas of the
+    # prior's arc length. Beyond it, a fix off a curved line can lie on the tangent at some far point,
+    # and a fix the prior rejects would pass with a small NIS there
+    s_reach = math.sqrt(cfg[K_GATE_GPS] * P[S, S])
     for it in range(GPS_IEKF_ITERATIONS + 1):
         he, hn, H, de, dn = gps_model(x, ts, te, tn, dl, s_lin)
         y[0] = east - he - de * (x[S] - s_lin)  # y = z - h(x*) - H (x - x*): x - x* is along s only
@@ -1449,6 +1457,7 @@ def step_gps(x, P, aux, cnt, cfg, ts, te, tn, tg, t, east, north, sigma_h, fix_q
         w0 = si00 * y[0] + si01 * y[1]  # S^-1 y
         w1 = si01 * y[0] + si11 * y[1]
         s_next = x[S] + aux[A_WK_PHT + S] * w0 + aux[A_WK_PHT + NX + S] * w1  # s + (P H' S^-1 y)_s
+        s_next = min(max(s_next, x[S] - s_reach), x[S] + s_reach)
         if abs(s_next - s_lin) < GPS_IEKF_TOL_M:
             break
         s_lin = s_next
@@ -1504,7 +1513,12 @@ def step_gps(x, P, aux, cnt, cfg, ts, te, tn, tg, t, east, north, sigma_h, fix_q
                 aux[A_GPS_N] = north
                 return O_ACCEPTED
         elif t - aux[A_T_FIRST_GPS_REJ] >= cfg[K_REACQ_S]:
-            # inconsistent rejected fixes: start a new run from this fix
+            # inconsistent rejected fixes: start a new run from this fix, and ask for a relocalisation
+            # (the caller spawns hypotheses where this fix is on the network: TrackFilter._relocalise)
+            if cfg[K_RELOC] != 0.0:
+                aux[A_RELOC] = 1.0
+                aux[A_RELOC_E] = east
+                aux[A_RELOC_N] = north
             aux[A_GPS_REJ] = 1.0
             aux[A_T_FIRST_GPS_REJ] = t
             aux[A_REJ_DS] = along

@@ -164,7 +164,13 @@ A_WK_K = A_WK_PHT + 2 * NX
 A_SS_MASK = A_WK_K + 2 * NX  #: bit mask (0: nothing detected)
 A_SS_UNTIL = A_SS_MASK + 1  #: the exclusion and the widening last until this time [s]
 A_SS_DS = A_SS_MASK + 2  #: that separation or jump [m]
-NAUX = A_SS_MASK + 3
+#: Relocalisation (``TrackFilter._relocalise``; docs/filter.md, "Lines, junctions"): 1 when a run of
+#: rejected fixes as long as ``reacquire_s`` ended without agreeing along this hypothesis's line; the
+#: last fix of that run, local east and north [m]
+A_RELOC = A_SS_MASK + 3
+A_RELOC_E = A_SS_MASK + 4
+A_RELOC_N = A_SS_MASK + 5
+NAUX = A_SS_MASK + 6
 
 # ---------------------------------------------------------------- counters cnt (int64[NCNT])
 C_IMU_OK = 0
@@ -201,7 +207,8 @@ C_IMU_STUCK = 30
 C_IMU_FAULT = 31
 C_SEP_DETECT = 32  #: solution-separation detections (runs of them: an exclusion, or a widening)
 C_SEP_EXCLUDED = 33  #: GNSS fixes not used while it is excluded
-NCNT = 34
+C_RELOC = 34  #: relocalisations: candidates spawned where the rejected fixes are (TrackFilter._relocalise)
+NCNT = 35
 
 COUNTER_NAMES = (
     "imu_accepted", "imu_late", "imu_invalid",
@@ -213,6 +220,7 @@ COUNTER_NAMES = (
     "gps_held_off", "gps_reacquisitions", "odo_reanchors",
     "gyro_accepted", "gyro_gated", "gps_late_applied", "slip_rewinds", "time_jumps_rejected",
     "imu_stuck_samples", "imu_faults", "separation_detections", "separation_excluded",
+    "relocalisations",
 )
 assert len(COUNTER_NAMES) == NCNT
 

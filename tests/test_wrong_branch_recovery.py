@@ -8,8 +8,15 @@ as-built path runs nearer line 8's geometry just before the divergence, and the 
 counted each 10 Hz fix as independent evidence: the line-2 hypothesis was pruned 1.5 s before the
 lines parted, every later fix was gated (2040, 0 reacquisitions) and the estimate stayed on line 8,
 100+ m from the train, with a sigma of 0.1-0.2 m. Fixed by weighting a fix's evidence by the time
-since the previous one (sfa.bank.run_segment, the CUSUM's rule). Still missing (docs/filter.md):
-relocalisation of a lone hypothesis that gates every fix.
+since the previous one (sfa.bank.run_segment, the CUSUM's rule).
+
+Session 16 added the relocalisation (TrackFilter._relocalise): the same seed with the old scoring
+(every fix full evidence, ``cusum_min_interval_s = 0``) still takes the wrong branch, and must come
+back. Before it the estimate stayed on line 8 to the end of the run; with the relocalisation alone it
+came back after 82 s, because a fix off line 8's curve lay on the tangent at a far point of it, passed
+the gate there (the iterated update linearised 20+ m from the prior) and broke every run of
+rejections; the iterated update now linearises only where the prior admits the train (within the
+gate's sigmas of its arc length).
 """
 
 from __future__ import annotations
@@ -27,13 +34,14 @@ from tools.bench_replay import load_benchmark_module
 from track_db import TrackDatabase
 
 
-def _longest_off_track_s(seed: int) -> float:
-    """Longest time [s] the estimate is more than 10 m from the train, rtk family, this seed, 620 s."""
+def _longest_off_track_s(seed: int, **overrides) -> tuple[float, dict[str, int]]:
+    """Longest time [s] the estimate is more than 10 m from the train, rtk family, this seed, 620 s,
+    and the filter's counters at the end; ``overrides``: FilterConfig fields."""
     acc = load_benchmark_module("bench_filter_accuracy")
     sc, _ = family_scenario(family_by_name("rtk"), seed, 620.0)
     run = generate(sc, seed)
     track = TrackDatabase.open(database_path(sc))
-    cfg = datasheet_config_for(sc.imu.preset, sc.odometer.preset, sc.gps.preset)
+    cfg = datasheet_config_for(sc.imu.preset, sc.odometer.preset, sc.gps.preset).replace(**overrides)
     filt = TrackFilter(track, cfg)
     te, lat, lon = run.truth["epoch"], run.truth["lat"], run.truth["lon"]
     off_since = None
@@ -56,16 +64,27 @@ def _longest_off_track_s(seed: int) -> float:
             longest = max(longest, m.t_s - off_since)
         else:
             off_since = None
+    counters = filt.counters()
     track.close()
-    return longest
+    return longest, counters
 
 
 def test_stays_on_the_track_through_the_junction():
     """The same run and check on a seed whose hypotheses always resolved right."""
-    assert _longest_off_track_s(1) <= 30.0
+    longest, counters = _longest_off_track_s(1)
+    assert longest <= 30.0
+    assert counters["relocalisations"] == 0
 
 
 def test_recovers_from_the_wrong_branch():
     # the estimate is never more than 10 m from the train for longer than 30 s
-    longest = _longest_off_track_s(8)
+    longest, _ = _longest_off_track_s(8)
     assert longest <= 30.0, f"estimate more than 10 m from the train for {longest:.0f} s"
+
+
+def test_relocalises_off_the_wrong_branch():
+    """The old scoring still takes the wrong branch on seed 8; the relocalisation brings the estimate
+    back once the fixes have been rejected for ``reacquire_s`` (30 s) and disagree along line 8."""
+    longest, counters = _longest_off_track_s(8, cusum_min_interval_s=0.0)
+    assert counters["relocalisations"] >= 1
+    assert longest <= 35.0, f"estimate more than 10 m from the train for {longest:.0f} s"

@@ -1058,6 +1058,7 @@ static long step_gps(double *x, double *P, double *aux, long *cnt, const double 
     double H[2 * NX] = {0}, R[4] = {0}, y[2];
     Innov2 in;
     double s_lin = x[S];
+    double s_reach = sqrt(cfg[K_GATE_GPS] * PIJ(P, S, S)); /* the linearisation point stays within the gate */
     for (int it = 0; it <= GPS_IEKF_ITERATIONS; it++) {
         double s_eval = s_lin - x[V] * dl;
         geom_at(ts, te, tn, nv, s_eval, &e, &n, &de, &dn);
@@ -1091,6 +1092,7 @@ static long step_gps(double *x, double *P, double *aux, long *cnt, const double 
         double w0 = in.si00 * y[0] + in.si01 * y[1];
         double w1 = in.si01 * y[0] + in.si11 * y[1];
         double s_next = x[S] + aux[A_WK_PHT + S] * w0 + aux[A_WK_PHT + NX + S] * w1;
+        s_next = gn_min(gn_max(s_next, x[S] - s_reach), x[S] + s_reach);
         if (fabs(s_next - s_lin) < GPS_IEKF_TOL_M)
             break;
         s_lin = s_next;
@@ -1144,6 +1146,11 @@ static long step_gps(double *x, double *P, double *aux, long *cnt, const double 
                 return O_ACCEPTED;
             }
         } else if (t - aux[A_T_FIRST_GPS_REJ] >= cfg[K_REACQ_S]) {
+            if (cfg[K_RELOC] != 0.0) { /* a relocalisation request (the Python side spawns) */
+                aux[A_RELOC] = 1.0;
+                aux[A_RELOC_E] = east;
+                aux[A_RELOC_N] = north;
+            }
             aux[A_GPS_REJ] = 1.0;
             aux[A_T_FIRST_GPS_REJ] = t;
             aux[A_REJ_DS] = along;
