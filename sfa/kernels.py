@@ -1440,8 +1440,9 @@ def step_gps(x, P, aux, cnt, cfg, ts, te, tn, tg, t, east, north, sigma_h, fix_q
     y = np.zeros(2)
     s_lin = x[S]
     # the linearisation point stays where the prior admits the train: within the gate's sigmas of the
-    # prior's arc length. Beyond it, a fix off a curved line can lie on the tangent at some far point,
-    # and a fix the prior rejects would pass with a small NIS there
+    # prior's arc length (a linear update that passes the gate moves s by at most sqrt(gate P_ss), since
+    # |K_s y| <= sqrt(P_ss NIS)). Beyond it, a fix off a curved line can lie on the tangent at some far
+    # point, and a fix the prior rejects would pass there with a small NIS
     s_reach = math.sqrt(cfg[K_GATE_GPS] * P[S, S])
     for it in range(GPS_IEKF_ITERATIONS + 1):
         he, hn, H, de, dn = gps_model(x, ts, te, tn, dl, s_lin)
