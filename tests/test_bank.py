@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import math
 
 import numpy as np
@@ -12,6 +13,7 @@ from sfa import batch
 from sfa import layout as L
 from sfa.bank import I_JHI, I_JLO, NEF, NEI, NOST, O_LAST, O_ROW, HypothesisBank, RunOutput, score
 from sfa.filter import TrackFilter
+from sfa.measurements import InitMeas
 from sfa.presets import filter_config_for
 from sfa.synthetic import build_track_db, generate
 from sfa.track_arrays import TrackArrays
@@ -43,13 +45,11 @@ def _output_rule(estimates):
     return np.array(sent)
 
 
-def test_run_over_packed_measurements_equals_process_one_by_one(db, monkeypatch):
-    """TrackFilter.run (the replay's path) and TrackFilter.process per measurement: the same outcomes,
-    NIS, sent estimates and final hypotheses, bit for bit, through the junction where line 2 leaves
-    line 1 (branches spawned, hypotheses on two lines, standstill reversals)."""
-    cfg = filter_config_for()
-    run = generate(db, 1, 240.0, IMU, ODO, GPS, seed=11)
-    meas = run.measurements
+def _both_paths(db, cfg, meas, monkeypatch):
+    """TrackFilter.process per measurement, and TrackFilter.run (the replay's path) over the packed
+    measurements, checked equal bit for bit: outcomes, NIS, sent estimates, final hypotheses and
+    counters. Returns (the per-message filter, the most lines with hypotheses at once, the rows after
+    which the compiled loop stopped for a spawn)."""
     one = TrackFilter(db, cfg)
     upd = [one.process(m) for m in [meas[0]]]
     ests = [one.estimate()]
@@ -58,7 +58,6 @@ def test_run_over_packed_measurements_equals_process_one_by_one(db, monkeypatch)
         upd.append(one.process(m))
         ests.append(one.estimate())
         most = max(most, len({h[3] for h in one.hypotheses()}))
-    assert most == 2  # the run did keep hypotheses on both lines at some time
 
     packed = batch.pack(meas, db)
     n = len(meas)
@@ -70,7 +69,7 @@ def test_run_over_packed_measurements_equals_process_one_by_one(db, monkeypatch)
     two = TrackFilter(db, cfg)
     i = 0
     handed = branched = 0
-    while i < n:
+    while i < n:  # bounded: every pass moves i on by at least one row
         j, b = two.run(packed.kind, packed.t_s, packed.values, i, out)
         branched += b
         if j >= n:
@@ -81,7 +80,7 @@ def test_run_over_packed_measurements_equals_process_one_by_one(db, monkeypatch)
         out.u_nis[j] = math.nan if u.nis is None else u.nis
         two.emit(j, out)
         i = j + 1
-    assert branched >= 1 and handed < 10  # the GROUND TRUTH goes through process(), the rest ran compiled
+    assert handed < 10  # the GROUND TRUTH goes through process(), the rest ran compiled
     assert out.u_out.tolist() == [int(u.outcome) for u in upd]
     want_nis = np.array([math.nan if u.nis is None else u.nis for u in upd])
     np.testing.assert_array_equal(out.u_nis, want_nis)
@@ -96,6 +95,42 @@ def test_run_over_packed_measurements_equals_process_one_by_one(db, monkeypatch)
         np.testing.assert_array_equal(pa, pb)
         np.testing.assert_array_equal(aa, ab)
     assert one.counters() == two.counters()
+    return one, most, branched
+
+
+def test_run_over_packed_measurements_equals_process_one_by_one(db, monkeypatch):
+    """TrackFilter.run and TrackFilter.process give the same, bit for bit, through the junction where
+    line 2 leaves line 1 (branches spawned, hypotheses on two lines, standstill reversals)."""
+    run = generate(db, 1, 240.0, IMU, ODO, GPS, seed=11)
+    _, most, branched = _both_paths(db, filter_config_for(), run.measurements, monkeypatch)
+    assert most == 2  # the run did keep hypotheses on both lines at some time
+    assert branched >= 1
+
+
+def test_a_filter_on_the_wrong_branch_is_relocalised_the_same_on_both_paths(db, monkeypatch):
+    """The train runs on line 1; the GROUND TRUTH puts the filter on line 2, which shares line 1's
+    first kilometre, and no branch is spawned where they part (junction window 0): the lone line-2
+    hypothesis rejects every fix once the lines have parted. After reacquire_s of rejections that
+    disagree along line 2 it is relocalised onto line 1 (TrackFilter._relocalise), where the train
+    is; the compiled loop stops at the same measurement and both paths give the same, bit for bit."""
+    run = generate(db, 1, 240.0, IMU, ODO, GPS, seed=11)
+    meas = list(run.measurements)
+    assert isinstance(meas[0], InitMeas) and meas[0].line_id == 1
+    meas[0] = dataclasses.replace(meas[0], line_id=2)
+    cfg = filter_config_for().replace(junction_window_m=0.0)
+    one, _, stops = _both_paths(db, cfg, meas, monkeypatch)
+    assert stops >= 1
+    assert one.counters()["relocalisations"] == 1
+    est = one.estimate()
+    assert est.line_id == 1
+    truth = float(np.interp(est.epoch_s, run.t_s, run.s_m))
+    assert abs(est.arc_length_m - truth) < 5.0, (est.arc_length_m, truth)
+    # the same run without relocalisation stays on line 2
+    alone = TrackFilter(db, cfg.replace(relocalise=False))
+    for m in meas:  # bounded: one 240 s run
+        alone.process(m)
+    assert alone.estimate().line_id == 2
+    assert alone.counters()["relocalisations"] == 0
 
 
 def test_a_nis_that_is_not_a_number_scores_as_the_cap():
