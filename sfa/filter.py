@@ -492,18 +492,25 @@ class TrackFilter:
     def _relocalise(self) -> None:
         """The reported hypothesis rejected every fix for ``reacquire_s`` and the fixes did not agree
         along its line (kernels.step_gps set A_RELOC): it may be on the wrong line (a branch chosen at a
-        diverging junction before the lines had parted) or lost along its own. Add a hypothesis where the
-        run's last fix projects onto each line of the network within the GNSS gate of it: the parent's
-        state with the arc length of the projection (its variance the fix's along-track error), the
-        GNSS error state restarted, the parent's score. The GNSS score then keeps whichever the fixes
-        agree with, as at a junction; the parent stays alive until then."""
+        diverging junction before the lines had parted). Add a hypothesis on each line of the network
+        the fixes do agree along, the test the reacquisition makes on the hypothesis's own line: the
+        run's first and last fixes both within the GNSS gate of the line, and the arc length between
+        their projections, in the train's sense of travel there, within ``reacquire_consistency_m`` of
+        the distance the hypothesis travelled meanwhile. Fixes drifting against the odometer (a
+        multipath ramp) agree along no line and move nothing. The new hypothesis is the parent's state
+        with the last fix's arc length (its variance the fix's along-track error), the GNSS error state
+        restarted, the parent's score; the GNSS score then keeps whichever the fixes agree with, as at
+        a junction, and the parent stays alive until then."""
         b = self._bank
         rep = b.reported
         if b.AUX[rep, L.A_RELOC] == 0.0:
             return
         b.AUX[rep, L.A_RELOC] = 0.0
-        east, north = float(b.AUX[rep, L.A_RELOC_E]), float(b.AUX[rep, L.A_RELOC_N])
-        if not (math.isfinite(east) and math.isfinite(north)):
+        aux_rep = b.AUX[rep]
+        east, north = float(aux_rep[L.A_RELOC_E]), float(aux_rep[L.A_RELOC_N])
+        east0, north0 = float(aux_rep[L.A_RELOC_E0]), float(aux_rep[L.A_RELOC_N0])
+        travelled = float(aux_rep[L.A_RELOC_DS])
+        if not all(math.isfinite(v) for v in (east, north, east0, north0, travelled)):
             return
         b.CNT[rep, L.C_RELOC] += 1
         cfg = self._cfg
@@ -514,22 +521,28 @@ class TrackFilter:
         d = b.direction(rep)
         _, _, pde, pdn = K.geom_at(parent.s_m, parent.east_m, parent.north_m, float(b.X[rep, L.S]))
         new: list[int] = []
+        consistency = float(cfg[L.K_REACQ_CONSIST_M])
         for info in self._track.lines():
             try:
-                s_proj, offset = self._track.line(info.line_id).project(east, north)
+                s_proj, offset = self._track.line(info.line_id).project([east, east0], [north, north0])
                 line = self.line_arrays(info.line_id)
             except self._track_errors:
                 continue
-            s_proj, offset = float(s_proj), float(offset)
-            if not abs(offset) <= radius:
+            if not (abs(float(offset[0])) <= radius and abs(float(offset[1])) <= max(radius, consistency)):
                 continue
-            if line.line_id == parent.line_id and abs(s_proj - float(b.X[rep, L.S])) < 1.0:
+            s_last, s_first = float(s_proj[0]), float(s_proj[1])
+            if line.line_id == parent.line_id and abs(s_last - float(b.X[rep, L.S])) < 1.0:
                 continue  # where the parent already is
-            _, _, de, dn = K.geom_at(line.s_m, line.east_m, line.north_m, s_proj)
-            same_way = d * (de * pde + dn * pdn) >= 0.0  # the train's heading along this line's arc length
+            if not abs(abs(s_last - s_first) - abs(travelled)) <= consistency:
+                continue  # the fixes do not move along this line as the train did
+            if abs(s_last - s_first) > consistency:  # the sense of travel the fixes show on this line
+                same_way = (s_last > s_first) == (travelled > 0.0)
+            else:  # (nearly) at a standstill: the parent's heading, as near as its line gives it
+                _, _, de, dn = K.geom_at(line.s_m, line.east_m, line.north_m, s_last)
+                same_way = d * (de * pde + dn * pdn) >= 0.0
             g = b.new_slot(new)
             keys = b.spawned(rep) if line.line_id == parent.line_id else frozenset()
-            self._copy_to(rep, g, line, s_proj, keys, flip=(d > 0) != same_way)
+            self._copy_to(rep, g, line, s_last, keys, flip=(d > 0) != same_way)
             x, P = b.X[g], b.PP[g]
             for i in (L.S, L.GE, L.GN):  # re-anchored on the fix: no correlation with the rest
                 P[i, :] = 0.0

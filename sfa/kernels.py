@@ -74,10 +74,16 @@ from sfa.layout import (
     A_QB_VV,
     A_RAMP_T,
     A_REJ_DS,
+    A_REJ_E,
     A_REJ_MAXDEV,
+    A_REJ_N,
+    A_REJ_S,
     A_RELOC,
+    A_RELOC_DS,
     A_RELOC_E,
+    A_RELOC_E0,
     A_RELOC_N,
+    A_RELOC_N0,
     A_SEG,
     A_SLIP,
     A_SLIP_BAD,
@@ -1495,6 +1501,9 @@ def step_gps(x, P, aux, cnt, cfg, ts, te, tn, tg, t, east, north, sigma_h, fix_q
             aux[A_T_FIRST_GPS_REJ] = t
             aux[A_REJ_DS] = along
             aux[A_REJ_MAXDEV] = 0.0
+            aux[A_REJ_E] = east
+            aux[A_REJ_N] = north
+            aux[A_REJ_S] = x[S]
             if math.sqrt(y[0] * y[0] + y[1] * y[1]) >= cfg[K_STEP_MIN_M]:
                 aux[A_STEP_FLAG] = 1.0  # a jump: large innovation after accepted fixes
                 cnt[C_STEP] += 1
@@ -1520,10 +1529,16 @@ def step_gps(x, P, aux, cnt, cfg, ts, te, tn, tg, t, east, north, sigma_h, fix_q
                 aux[A_RELOC] = 1.0
                 aux[A_RELOC_E] = east
                 aux[A_RELOC_N] = north
+                aux[A_RELOC_E0] = aux[A_REJ_E]
+                aux[A_RELOC_N0] = aux[A_REJ_N]
+                aux[A_RELOC_DS] = aux[A_DIR] * (x[S] - aux[A_REJ_S])  # distance travelled forward
             aux[A_GPS_REJ] = 1.0
             aux[A_T_FIRST_GPS_REJ] = t
             aux[A_REJ_DS] = along
             aux[A_REJ_MAXDEV] = 0.0
+            aux[A_REJ_E] = east
+            aux[A_REJ_N] = north
+            aux[A_REJ_S] = x[S]
         return O_GATED
     # ramp detection: two-sided CUSUM of the normalised along-track innovation
     s_along = ue * (s00 * ue + s01 * un) + un * (s01 * ue + s11 * un)  # u' S u

@@ -164,13 +164,21 @@ A_WK_K = A_WK_PHT + 2 * NX
 A_SS_MASK = A_WK_K + 2 * NX  #: bit mask (0: nothing detected)
 A_SS_UNTIL = A_SS_MASK + 1  #: the exclusion and the widening last until this time [s]
 A_SS_DS = A_SS_MASK + 2  #: that separation or jump [m]
-#: Relocalisation (``TrackFilter._relocalise``; docs/filter.md, "Lines, junctions"): 1 when a run of
-#: rejected fixes as long as ``reacquire_s`` ended without agreeing along this hypothesis's line; the
-#: last fix of that run, local east and north [m]
-A_RELOC = A_SS_MASK + 3
-A_RELOC_E = A_SS_MASK + 4
-A_RELOC_N = A_SS_MASK + 5
-NAUX = A_SS_MASK + 6
+#: The current run of rejected fixes: its first fix, local east and north [m], and the arc length then [m]
+A_REJ_E = A_SS_MASK + 3
+A_REJ_N = A_SS_MASK + 4
+A_REJ_S = A_SS_MASK + 5
+#: Relocalisation (``TrackFilter._relocalise``; docs/filter.md, "Lines, junctions"): A_RELOC is 1 when a
+#: run of rejected fixes as long as ``reacquire_s`` ended without agreeing along this hypothesis's line;
+#: that run's last and first fixes, local east and north [m], and the distance the hypothesis travelled
+#: forward between them [m]
+A_RELOC = A_SS_MASK + 6
+A_RELOC_E = A_SS_MASK + 7
+A_RELOC_N = A_SS_MASK + 8
+A_RELOC_E0 = A_SS_MASK + 9
+A_RELOC_N0 = A_SS_MASK + 10
+A_RELOC_DS = A_SS_MASK + 11
+NAUX = A_SS_MASK + 12
 
 # ---------------------------------------------------------------- counters cnt (int64[NCNT])
 C_IMU_OK = 0

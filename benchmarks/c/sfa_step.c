@@ -1125,6 +1125,9 @@ static long step_gps(double *x, double *P, double *aux, long *cnt, const double 
             aux[A_T_FIRST_GPS_REJ] = t;
             aux[A_REJ_DS] = along;
             aux[A_REJ_MAXDEV] = 0.0;
+            aux[A_REJ_E] = east;
+            aux[A_REJ_N] = north;
+            aux[A_REJ_S] = x[S];
             if (sqrt(y[0] * y[0] + y[1] * y[1]) >= cfg[K_STEP_MIN_M]) {
                 aux[A_STEP_FLAG] = 1.0;
                 cnt[C_STEP] += 1;
@@ -1150,11 +1153,17 @@ static long step_gps(double *x, double *P, double *aux, long *cnt, const double 
                 aux[A_RELOC] = 1.0;
                 aux[A_RELOC_E] = east;
                 aux[A_RELOC_N] = north;
+                aux[A_RELOC_E0] = aux[A_REJ_E];
+                aux[A_RELOC_N0] = aux[A_REJ_N];
+                aux[A_RELOC_DS] = aux[A_DIR] * (x[S] - aux[A_REJ_S]);
             }
             aux[A_GPS_REJ] = 1.0;
             aux[A_T_FIRST_GPS_REJ] = t;
             aux[A_REJ_DS] = along;
             aux[A_REJ_MAXDEV] = 0.0;
+            aux[A_REJ_E] = east;
+            aux[A_REJ_N] = north;
+            aux[A_REJ_S] = x[S];
         }
         return O_GATED;
     }
