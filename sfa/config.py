@@ -207,9 +207,9 @@ class FilterConfig:
     reacquire_s: float = slot(30.0, "K_REACQ_S")
     #: largest drift of the rejected along-track residual [m]
     reacquire_consistency_m: float = slot(3.0, "K_REACQ_CONSIST_M")
-    #: when such a run does not agree along the line (the estimate is on the wrong line, or lost along
-    #: it), spawn hypotheses where the run's last fix projects onto every line within the GNSS gate of
-    #: it, and let the GNSS score choose (TrackFilter._relocalise)
+    #: when such a run does not agree along the line (the estimate may be on the wrong line), add a
+    #: hypothesis on every line the run's fixes move along as the train did (within the GNSS gate, and
+    #: reacquire_consistency_m), and let the GNSS score choose (TrackFilter._relocalise)
     relocalise: bool = slot(True, "K_RELOC")
     # --- time-outs
     imu_timeout_s: float = slot(0.5, "K_IMU_TIMEOUT")  #: IMU silent longer than this: timed out [s]

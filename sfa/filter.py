@@ -494,13 +494,14 @@ class TrackFilter:
         along its line (kernels.step_gps set A_RELOC): it may be on the wrong line (a branch chosen at a
         diverging junction before the lines had parted). Add a hypothesis on each line of the network
         the fixes do agree along, the test the reacquisition makes on the hypothesis's own line: the
-        run's first and last fixes both within the GNSS gate of the line, and the arc length between
-        their projections, in the train's sense of travel there, within ``reacquire_consistency_m`` of
-        the distance the hypothesis travelled meanwhile. Fixes drifting against the odometer (a
-        multipath ramp) agree along no line and move nothing. The new hypothesis is the parent's state
-        with the last fix's arc length (its variance the fix's along-track error), the GNSS error state
-        restarted, the parent's score; the GNSS score then keeps whichever the fixes agree with, as at
-        a junction, and the parent stays alive until then."""
+        run's last fix within the GNSS gate of the line (its first within that or
+        ``reacquire_consistency_m``), and the arc length between their projections within
+        ``reacquire_consistency_m`` of the distance the hypothesis travelled meanwhile. Fixes drifting
+        against the odometer (a multipath ramp) agree along no line and move nothing. The new hypothesis
+        is the parent's state with the last fix's arc length (its variance the fix's along-track error),
+        the sense of travel the fixes show on its line, the GNSS error state restarted and the parent's
+        score; the GNSS score then keeps whichever the fixes agree with, as at a junction, and the
+        parent stays alive until then."""
         b = self._bank
         rep = b.reported
         if b.AUX[rep, L.A_RELOC] == 0.0:
@@ -512,7 +513,6 @@ class TrackFilter:
         travelled = float(aux_rep[L.A_RELOC_DS])
         if not all(math.isfinite(v) for v in (east, north, east0, north0, travelled)):
             return
-        b.CNT[rep, L.C_RELOC] += 1
         cfg = self._cfg
         gm, gw = float(b.AUX[rep, L.A_GM_SIG]), float(b.AUX[rep, L.A_GW_SIG])
         var_fix = gm * gm + gw * gw + float(cfg[L.K_TRACK_LAT]) ** 2  # per axis [m^2]
@@ -556,6 +556,8 @@ class TrackFilter:
             aux[L.A_CUSUM_P] = aux[L.A_CUSUM_N] = 0.0
             new.append(g)
         if new:
+            for h in [rep, *new]:  # one relocalisation, in the counters of whichever is kept
+                b.CNT[h, L.C_RELOC] += 1
             b.set_live(b.slots() + new, int(b.ns[1]))
             b.empty_gyro_windows()
             b.prune(cfg)

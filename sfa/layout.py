@@ -215,7 +215,8 @@ C_IMU_STUCK = 30
 C_IMU_FAULT = 31
 C_SEP_DETECT = 32  #: solution-separation detections (runs of them: an exclusion, or a widening)
 C_SEP_EXCLUDED = 33  #: GNSS fixes not used while it is excluded
-C_RELOC = 34  #: relocalisations: candidates spawned where the rejected fixes are (TrackFilter._relocalise)
+#: relocalisations: hypotheses added on lines the rejected fixes agree along (TrackFilter._relocalise)
+C_RELOC = 34
 NCNT = 35
 
 COUNTER_NAMES = (
