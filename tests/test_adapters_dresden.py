@@ -374,10 +374,10 @@ def test_pipeline_takes_every_datagram_of_the_real_log(converted):
 def test_the_listener_does_not_publish_the_estimates_that_leave_the_line(converted):
     """With its plausibility stage (the listener's default) the estimates that the model-matched train
     tuning puts off the car's line (docs/real-data.md, run A: p95 3 km) are not sent: every published
-    arc length lies within the line plus arc_margin_m, and the withheld ones are counted (also the
-    jumps back towards the fixes that relocalisations make, withheld as implausible steps until the
-    speed bound admits them). The default datasheet presets keep the estimate on the line: nothing is
-    withheld."""
+    arc length lies within the line plus arc_margin_m, and every withheld one is counted as a warning
+    (off the line, or an implausible step: a relocalisation's jump back towards the fixes is withheld
+    until the speed bound admits it). The default datasheet presets keep the estimate on the line:
+    nothing is withheld."""
     from dataclasses import replace
 
     from listener.config import ListenerConfig, PlausibilityConfig
