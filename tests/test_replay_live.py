@@ -28,8 +28,10 @@ def test_live_capture_replays_to_what_the_listener_sent(tmp_path):
     tap_port, lport, oport = free_udp_port(), free_udp_port(), free_udp_port()
     obcu_csv = tmp_path / "obcu.csv"
     obcu = subprocess.Popen(
-        # --idle-exit: the OBCU leaves once the outputs have stopped for 2 s, after reading every one
-        # (a SIGTERM right after the listener's exit raced its last datagrams: 12 rows short, once)
+        # --idle-exit: the OBCU leaves by itself once the outputs have stopped for 2 s, after reading
+        # every one (not a SIGTERM that could cut its last reads short). The test still fails now and
+        # then under CPU load, the OBCU's log short of the replay's last outputs; session 16 saw it fail
+        # the same way at aa87a24 with two busy loops beside it: the cause is not found yet
         [sys.executable, "-m", "sfa", "obcu", "--port", str(oport), "--csv", str(obcu_csv), "--quiet",
          "--idle-exit", "2"],
         stderr=subprocess.DEVNULL,
