@@ -514,7 +514,7 @@ class TrackFilter:
         if not all(math.isfinite(v) for v in (east, north, east0, north0, travelled)):
             return
         cfg = self._cfg
-        gm, gw = float(b.AUX[rep, L.A_GM_SIG]), float(b.AUX[rep, L.A_GW_SIG])
+        gm, gw = float(aux_rep[L.A_GM_SIG]), float(aux_rep[L.A_GW_SIG])
         var_fix = gm * gm + gw * gw + float(cfg[L.K_TRACK_LAT]) ** 2  # per axis [m^2]
         radius = math.sqrt(float(cfg[L.K_GATE_GPS]) * var_fix)
         parent = b.line(rep)
@@ -558,10 +558,7 @@ class TrackFilter:
         if new:
             for h in [rep, *new]:  # one relocalisation, in the counters of whichever is kept
                 b.CNT[h, L.C_RELOC] += 1
-            b.set_live(b.slots() + new, int(b.ns[1]))
-            b.empty_gyro_windows()
-            b.prune(cfg)
-        b.compact()
+        self._add_live(new)
 
     def _spawn_branches(self) -> None:
         """Add a hypothesis on every line that branches off within the look-ahead window."""
@@ -598,6 +595,12 @@ class TrackFilter:
                 else:  # arc length of the other line runs the other way at the junction
                     self._copy_to(h, g, other_line, s_other - (s - s_here), spawned, flip=True)
                 new.append(g)
+        self._add_live(new)
+
+    def _add_live(self, new: list[int]) -> None:
+        """Make the slots ``new`` (spawned from live hypotheses) live beside them: every gyro window
+        emptied so that all close at the same sample, pruned, the junction sets compacted."""
+        b = self._bank
         if new:
             b.set_live(b.slots() + new, int(b.ns[1]))
             b.empty_gyro_windows()
