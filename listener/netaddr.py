@@ -1,4 +1,6 @@
-"""One-line errors for socket addresses: which host and port failed, and why, in the user's words.
+"""UDP socket helpers: one-line errors for socket addresses, the receive buffer, the kernel's drops.
+
+The errors say which host and port failed, and why, in the user's words.
 
 ``OSError("[Errno 98] Address already in use")`` names neither the address nor the setting that chose
 it. These helpers turn a bind, connect or name-resolution failure into a :class:`ConfigError` whose
@@ -9,11 +11,14 @@ one-line reason).
 from __future__ import annotations
 
 import errno
+import os
 import socket
 
 from listener.errors import ConfigError
 
-__all__ = ["address_error", "bind_udp", "resolve_udp"]
+__all__ = ["address_error", "bind_udp", "kernel_drops", "request_receive_buffer", "resolve_udp"]
+
+SO_RCVBUFFORCE = getattr(socket, "SO_RCVBUFFORCE", 33)  #: Linux; not exported by Python 3.11
 
 
 def address_error(exc: OSError, what: str, host: str, port: int) -> ConfigError:
@@ -47,3 +52,34 @@ def bind_udp(sock: socket.socket, host: str, port: int, what: str) -> None:
     except OSError as exc:
         sock.close()
         raise address_error(exc, what, host, port) from None
+
+
+def request_receive_buffer(sock: socket.socket, size_bytes: int) -> int | None:
+    """Ask for a ``size_bytes`` receive buffer (SO_RCVBUFFORCE first: root may exceed net.core.rmem_max,
+    others get at most that); returns what the kernel granted (Linux reports twice the size asked for,
+    its bookkeeping overhead), or None where it cannot say."""
+    for option in (SO_RCVBUFFORCE, socket.SO_RCVBUF):
+        try:
+            sock.setsockopt(socket.SOL_SOCKET, option, size_bytes)
+            break
+        except OSError:
+            continue
+    try:
+        return sock.getsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF)
+    except OSError:  # pragma: no cover
+        return None
+
+
+def kernel_drops(sock: socket.socket) -> int | None:
+    """Datagrams the kernel dropped for ``sock`` (receive buffer full), from /proc; None where unreadable."""
+    try:
+        inode = str(os.fstat(sock.fileno()).st_ino)
+        name = "udp6" if sock.family == socket.AF_INET6 else "udp"
+        with open(f"/proc/self/net/{name}") as fh:
+            for line in fh:
+                fields = line.split()
+                if len(fields) > 12 and fields[9] == inode:
+                    return int(fields[-1])
+    except (OSError, ValueError):
+        return None
+    return None

@@ -32,13 +32,12 @@ from listener import checkpoint as ckpt
 from listener.codec import HEADER_SIZE, INPUT_FORMS, RejectReason, SensorType
 from listener.config import ListenerConfig
 from listener.jsonlog import JsonLogger
-from listener.netaddr import address_error, bind_udp
+from listener.netaddr import address_error, bind_udp, kernel_drops, request_receive_buffer
 from listener.pipeline import BatchCounts, Pipeline
 from listener.sdnotify import Notifier, watchdog_interval_s
 
 #: receive buffer of the batched reader: larger than any UDP payload, so nothing is ever cut
 RECV_BUFFER_BYTES = 65536
-SO_RCVBUFFORCE = getattr(socket, "SO_RCVBUFFORCE", 33)  #: Linux; not exported by Python 3.11
 
 _FORM_SIZES: dict[int, int] = {
     int(t) << 16 | n_int << 8 | n_double: HEADER_SIZE + 4 * n_int + 8 * n_double
@@ -67,21 +66,6 @@ def early_reject_reason(buf: bytes | bytearray, n: int) -> str | None:
     if n != HEADER_SIZE + 4 * n_int + 8 * n_double:
         return _LENGTH
     return _FORM
-
-
-def kernel_drops(sock: socket.socket) -> int | None:
-    """Datagrams the kernel dropped for ``sock`` (receive buffer full), from /proc; None where unreadable."""
-    try:
-        inode = str(os.fstat(sock.fileno()).st_ino)
-        name = "udp6" if sock.family == socket.AF_INET6 else "udp"
-        with open(f"/proc/self/net/{name}") as fh:
-            for line in fh:
-                fields = line.split()
-                if len(fields) > 12 and fields[9] == inode:
-                    return int(fields[-1])
-    except (OSError, ValueError):
-        return None
-    return None
 
 
 class _InputProtocol(asyncio.DatagramProtocol):
@@ -220,8 +204,12 @@ class ListenerService:
         path = self.checkpoint_path
         if path is None:
             return
-        body["taken"] = {**body["taken"], "monotonic": time.monotonic(), "wall": time.time(),
-                         "boot_id": boot_id()}
+        body["taken"] = {
+            **body["taken"],
+            "monotonic": time.monotonic(),
+            "wall": time.time(),
+            "boot_id": boot_id(),
+        }
         try:
             write_atomic(path, ckpt.encode(body))
             self.counters["checkpoints_written"] = self.counters.get("checkpoints_written", 0) + 1
@@ -234,8 +222,10 @@ class ListenerService:
         GROUND TRUTH. Then checkpoints start."""
         path = self.checkpoint_path
         if path is None:
-            self.log.info("checkpoint_off", why="checkpoint.enabled is false, or no checkpoint.path and no "
-                          "STATE_DIRECTORY")
+            self.log.info(
+                "checkpoint_off",
+                why="checkpoint.enabled is false, or no checkpoint.path and no STATE_DIRECTORY",
+            )
             return
         res = self.pipeline.resilience
         try:
@@ -349,16 +339,7 @@ class ListenerService:
         inp = self.cfg.input
         family = socket.AF_INET6 if ":" in inp.bind else socket.AF_INET
         sock = socket.socket(family, socket.SOCK_DGRAM)
-        for option in (SO_RCVBUFFORCE, socket.SO_RCVBUF):  # FORCE: root may exceed net.core.rmem_max
-            try:
-                sock.setsockopt(socket.SOL_SOCKET, option, inp.receive_buffer_bytes)
-                break
-            except OSError:
-                continue
-        try:  # Linux reports twice the size asked for (its bookkeeping overhead)
-            self.receive_buffer_granted = sock.getsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF)
-        except OSError:  # pragma: no cover
-            self.receive_buffer_granted = None
+        self.receive_buffer_granted = request_receive_buffer(sock, inp.receive_buffer_bytes)
         bind_udp(sock, inp.bind, inp.port, "input socket (input.bind, input.port)")
         sock.setblocking(False)
         return sock

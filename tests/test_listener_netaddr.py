@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 import socket
 import subprocess
 import sys
@@ -9,7 +10,7 @@ import sys
 import pytest
 
 from listener.errors import ConfigError
-from listener.netaddr import address_error, bind_udp, resolve_udp
+from listener.netaddr import address_error, bind_udp, kernel_drops, request_receive_buffer, resolve_udp
 
 BAD_HOST = "no-such-host.invalid"  # RFC 6761: .invalid never resolves
 
@@ -86,3 +87,42 @@ def test_fault_proxy_names_its_addresses(busy_port):
     line = _one_line(_sfa("faults", "proxy", "--listen", "127.0.0.1:0", "--forward", f"{BAD_HOST}:9",
                           "--duration", "1"))  # fmt: skip
     assert f"proxy forward address (--forward) {BAD_HOST}:9: cannot resolve the host" in line
+
+
+def test_kernel_drops_counts_what_a_full_receive_buffer_lost():
+    rx = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    tx = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    try:
+        small = request_receive_buffer(rx, 4096)  # the kernel's minimum: a few datagrams at most
+        rx.bind(("127.0.0.1", 0))
+        assert small is not None and small < 65536
+        assert kernel_drops(rx) == 0
+        for _ in range(200):  # bounded: far more than 4 KiB holds
+            tx.sendto(b"\x00" * 18, rx.getsockname())
+        rx.setblocking(False)
+        kept = 0
+        for _ in range(200):
+            try:
+                rx.recv(64)
+            except BlockingIOError:
+                break
+            kept += 1
+        assert 0 < kept < 200
+        assert kernel_drops(rx) == 200 - kept
+    finally:
+        rx.close()
+        tx.close()
+
+
+def test_a_larger_receive_buffer_is_granted_up_to_what_the_kernel_allows():
+    sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    try:
+        asked = 4 * 1024 * 1024
+        granted = request_receive_buffer(sock, asked)
+        with open("/proc/sys/net/core/rmem_max") as fh:
+            rmem_max = int(fh.read())
+        # Linux doubles the size asked for; root (SO_RCVBUFFORCE) gets it whole, others at most rmem_max
+        expected = asked if os.geteuid() == 0 else min(asked, rmem_max)
+        assert granted == 2 * expected
+    finally:
+        sock.close()

@@ -27,14 +27,15 @@ pytestmark = pytest.mark.slow
 def test_live_capture_replays_to_what_the_listener_sent(tmp_path):
     tap_port, lport, oport = free_udp_port(), free_udp_port(), free_udp_port()
     obcu_csv = tmp_path / "obcu.csv"
+    obcu_log = tmp_path / "obcu.log"
     obcu = subprocess.Popen(
-        # --idle-exit: the OBCU leaves by itself once the outputs have stopped for 2 s, after reading
-        # every one (not a SIGTERM that could cut its last reads short). The test still fails now and
-        # then under CPU load, the OBCU's log short of the replay's last outputs; session 16 saw it fail
-        # the same way at aa87a24 with two busy loops beside it: the cause is not found yet
+        # --idle-exit: the OBCU leaves by itself once the outputs have stopped for 5 s, after reading
+        # every one (not a SIGTERM that could cut its last reads short). Its receive buffer is the
+        # default 4 MiB: with the kernel's 208 KiB (about 256 outputs) the burst a STOP flushes, on top of
+        # a backlog under CPU load, overflowed it now and then and the log lost the last outputs
         [sys.executable, "-m", "sfa", "obcu", "--port", str(oport), "--csv", str(obcu_csv), "--quiet",
-         "--idle-exit", "2"],
-        stderr=subprocess.DEVNULL,
+         "--idle-exit", "5"],
+        stderr=open(obcu_log, "w"),
         stdout=subprocess.DEVNULL,
     )
     log = tmp_path / "listener.log"
@@ -130,6 +131,8 @@ def test_live_capture_replays_to_what_the_listener_sent(tmp_path):
         text=True,
         timeout=300,
     )
+    obcu_exit = json.loads(obcu_log.read_text().splitlines()[-1])
+    assert obcu_exit["event"] == "obcu_exit" and obcu_exit["kernel_drops"] == 0, obcu_exit
     with open(obcu_csv, newline="") as fh:
         live = [(int(r["seq"]), float(r["epoch"]), float(r["arc_length"])) for r in csv.DictReader(fh)]
     with open(out / "estimates.csv", newline="") as fh:
