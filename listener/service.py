@@ -368,6 +368,9 @@ class ListenerService:
         if warm_up:
             t0 = time.perf_counter()
             self.pipeline.filter.warm_up()
+            from sfa.engine_build import jit_entry_points
+
+            jit_entry_points()  # the listener's own kernels too, before READY (on the JIT only)
             lines = self.pipeline.filter.preload_lines()
             from sfa.engine import active
 
