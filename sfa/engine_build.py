@@ -36,6 +36,7 @@ ENTRY_POINTS: dict[tuple[str, str], str] = {
     ("sfa.kernels", "status_of"): "A1 A2 A1 A1 f8",
     ("sfa.kernels", "predict_to"): "A1 A2 A1 I1 A1 A1 A1 f8",
     ("sfa.kernels", "sync_block"): "A1 A2 A1 A1 I1",
+    ("sfa.kernels", "restart_gnss_error"): "A1 A2 A1",
     ("sfa.kernels", "mirror"): "A1 A2 A1",
     ("sfa.kernels", "pending_var_v"): "A2 A1",
     ("sfa.kernels", "interp_at"): "A1 A1 f8",

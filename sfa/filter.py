@@ -543,14 +543,11 @@ class TrackFilter:
             g = b.new_slot(new)
             keys = b.spawned(rep) if line.line_id == parent.line_id else frozenset()
             self._copy_to(rep, g, line, s_last, keys, flip=(d > 0) != same_way)
-            x, P = b.X[g], b.PP[g]
-            for i in (L.S, L.GE, L.GN):  # re-anchored on the fix: no correlation with the rest
-                P[i, :] = 0.0
-                P[:, i] = 0.0
+            x, P, aux = b.X[g], b.PP[g], b.AUX[g]
+            P[L.S, :] = 0.0  # re-anchored on the fix: no correlation with the rest
+            P[:, L.S] = 0.0
             P[L.S, L.S] = var_fix
-            P[L.GE, L.GE] = P[L.GN, L.GN] = gm * gm
-            x[L.GE] = x[L.GN] = 0.0
-            aux = b.AUX[g]
+            K.restart_gnss_error(x, P, aux)  # a new line: the fixes' error and residuals start afresh
             aux[L.A_GPS_REJ] = 0.0
             aux[L.A_STEP_FLAG] = 0.0
             aux[L.A_CUSUM_P] = aux[L.A_CUSUM_N] = 0.0

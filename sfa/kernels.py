@@ -519,6 +519,24 @@ def _predict_step(x, P, aux, cfg, ts, tg, h, imu_ok):
 
 
 @njit(cache=True, _nrt=False, error_model="numpy")
+def restart_gnss_error(x, P, aux):
+    """A new receiver solution (after an outage) or a new line (a relocalisation): the GNSS correlated
+    error restarts from its stationary distribution, uncorrelated with the rest of the state, and the
+    residual history is forgotten (no pairs across the restart). Call after sync_block."""
+    gnss_noise.restart(aux)
+    gm = aux[A_GM_SIG]
+    for i in range(NX):  # no correlation with the rest
+        P[GE, i] = 0.0
+        P[i, GE] = 0.0
+        P[GN, i] = 0.0
+        P[i, GN] = 0.0
+    x[GE] = 0.0  # E[e_gnss] = 0
+    x[GN] = 0.0
+    P[GE, GE] = gm * gm  # var(e_gnss) = sigma_g^2 per axis
+    P[GN, GN] = gm * gm
+
+
+@njit(cache=True, _nrt=False, error_model="numpy")
 def sync_block(x, P, aux, cfg, cnt):
     """Bring P (and the GNSS error's mean) up to the state time: P = F_B P F_B' + Q_B for the pending
     block of prediction steps, then empty the block. Every reader of P calls this first."""
@@ -1419,19 +1437,7 @@ def step_gps(x, P, aux, cnt, cfg, ts, te, tn, tg, t, east, north, sigma_h, fix_q
         dl = 0.0
     sync_block(x, P, aux, cfg, cnt)
     if t - aux[A_T_GPS] > cfg[K_GPS_TIMEOUT] and aux[A_GPS_REJ] == 0.0:
-        # after an outage the receiver computes a new solution: its correlated error restarts from the
-        # stationary distribution, uncorrelated with the rest of the state
-        gnss_noise.restart(aux)
-        gm = aux[A_GM_SIG]
-        for i in range(NX):
-            P[GE, i] = 0.0
-            P[i, GE] = 0.0
-            P[GN, i] = 0.0
-            P[i, GN] = 0.0
-        x[GE] = 0.0
-        x[GN] = 0.0
-        P[GE, GE] = gm * gm
-        P[GN, GN] = gm * gm
+        restart_gnss_error(x, P, aux)  # after an outage the receiver computes a new solution
     check_timeouts(aux, cnt, cfg, max(t, aux[A_T_STATE]))
     if cfg[K_AD_WINDOW] > 0.0:  # the fix's distance from the line into the GNSS statistics (gnss_noise)
         c_x, n_e, n_n, s_foot = cross_track(ts, te, tn, x[S] - x[V] * dl, east, north)
