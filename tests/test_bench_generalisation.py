@@ -51,3 +51,23 @@ def test_real_data_rows_smartloc_and_dresden():
     line = next(ln for ln in table.splitlines() if ln.startswith("| dresden "))
     assert "| - |" in line and "nan" not in line
     assert "- %" not in line and "-x" not in line  # no unit after a missing value
+
+
+def test_coverage_interval_resamples_whole_seeds():
+    """The coverage interval is a seed bootstrap: it holds the pooled coverage, is the same on every
+    call, is wide when one seed misses for long (one seed in twenty at 20 %) and has no spread when
+    every seed covers alike; a single seed gives none."""
+    rng = np.random.default_rng(3)
+    seeds = [rng.random(600) < 0.97 for _ in range(19)] + [rng.random(600) < 0.2]
+    pooled = float(np.mean(np.concatenate(seeds)))
+    lo, hi = G.coverage_interval(seeds)
+    assert lo < pooled < hi
+    assert (lo, hi) == G.coverage_interval(seeds)
+    assert hi - lo > 0.04  # samples taken as independent would give about +-0.006
+    assert G.coverage_interval([np.ones(50, bool)] * 4) == (1.0, 1.0)
+    assert all(math.isnan(v) for v in G.coverage_interval([np.ones(50, bool)]))
+    row = {"family": "x", "seeds": 20, "sfa_p95": 1.0, "sfa_max": 2.0, "sfa_coverage": pooled,
+           "sfa_coverage_ci": (lo, hi), "sfa-gyro_p95": 1.0, "sfa-gyro_max": 2.0,
+           "sfa-gyro_coverage": pooled, "plain-ekf_p95": 1.1, "odo-dr_p95": 9.0}
+    line = G.markdown_table([row]).splitlines()[-1]
+    assert f"{100 * pooled:.1f} % ({100 * lo:.1f}-{100 * hi:.1f})" in line
