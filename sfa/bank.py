@@ -365,6 +365,7 @@ def run_segment(kind, t, vals, i0, stop_jumps, X, PP, AUX, CNT, MEM, IDX, order,
                     AUX[order[j], q] = AUX[order[rep], q]
         code = K.O_INVALID
         accepted = False
+        explained = False  # a fix within some hypothesis's gate, whether or not it updated it
         t_gps_prev = AUX[order[rep], L.A_T_GPS]  # the previous fix in use (the step below moves it)
         # solution separation's GNSS exclusion (one decision for the bank, kept in every hypothesis's
         # aux): a valid fix goes to no hypothesis
@@ -389,6 +390,11 @@ def run_segment(kind, t, vals, i0, stop_jumps, X, PP, AUX, CNT, MEM, IDX, order,
                                G[G_GRADE, a:b], ti, v[0], v[1], v[2], fq)
             if c == K.O_ACCEPTED:
                 accepted = True
+            elif (k == 3 and (c == K.O_GATED or c == K.O_HELD_OFF)
+                  and AUX[h, L.A_LAST_NIS_GPS] <= cfg[L.K_GATE_GPS]):
+                # scored against this fix (kernels.step_gps sets the NIS first) and inside the gate, but
+                # kept out of the state: a ramp's hold-off, a slip's arbitration, the CUSUM firing
+                explained = True
             if j == rep:
                 code = c
         nis = math.nan
@@ -409,7 +415,11 @@ def run_segment(kind, t, vals, i0, stop_jumps, X, PP, AUX, CNT, MEM, IDX, order,
                 if all_ok and any_on:
                     score(order, nh, AUX, L.A_LAST_NIS_GYRO, cap, 1.0)
                     prune(order, ns, X, AUX, IDX, G, LOFF, LLEN, cfg, work_i, work_f)
-            elif accepted:  # a measurement every hypothesis rejects is a sensor fault, not evidence
+            elif accepted or explained:
+                # a measurement every hypothesis rejects is a sensor fault, not evidence; one inside some
+                # hypothesis's gate is evidence even where none takes it into its state (a hold-off on
+                # the right hypothesis kept a wrong sense of travel reported for 19 s, 270 m away:
+                # urban-gnss seed 52)
                 # a fix carries the share of an independent fix's evidence the CUSUM gives it
                 # (kernels.gps_evidence_weight): a 10 Hz receiver's fixes counted one by one pruned the
                 # right branch within 1.5 s of a diverging junction (tests/test_wrong_branch_recovery)
