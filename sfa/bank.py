@@ -418,7 +418,7 @@ def run_segment(kind, t, vals, i0, stop_jumps, X, PP, AUX, CNT, MEM, IDX, order,
             elif accepted or explained:
                 # a measurement every hypothesis rejects is a sensor fault, not evidence; one inside some
                 # hypothesis's gate is evidence even where none takes it into its state (a hold-off on
-                # the right hypothesis kept a wrong sense of travel reported for 19 s, 270 m away:
+                # the right hypothesis kept a wrong sense of travel reported for 19 s, 277 m away:
                 # urban-gnss seed 52)
                 # a fix carries the share of an independent fix's evidence the CUSUM gives it
                 # (kernels.gps_evidence_weight): a 10 Hz receiver's fixes counted one by one pruned the
