@@ -16,7 +16,7 @@ import socket
 
 from listener.errors import ConfigError
 
-__all__ = ["address_error", "bind_udp", "kernel_drops", "request_receive_buffer", "resolve_udp"]
+__all__ = ["address_error", "bind_udp", "kernel_drops", "open_udp", "request_receive_buffer", "resolve_udp"]
 
 SO_RCVBUFFORCE = getattr(socket, "SO_RCVBUFFORCE", 33)  #: Linux; not exported by Python 3.11
 
@@ -68,6 +68,17 @@ def request_receive_buffer(sock: socket.socket, size_bytes: int) -> int | None:
         return sock.getsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF)
     except OSError:  # pragma: no cover
         return None
+
+
+def open_udp(host: str, port: int, receive_buffer_bytes: int, what: str) -> tuple[socket.socket, int | None]:
+    """A UDP socket (IPv6 when ``host`` has a colon) with a ``receive_buffer_bytes`` receive buffer
+    asked for (:func:`request_receive_buffer`), bound to ``host:port`` (:func:`bind_udp`: a failure is a
+    ConfigError naming ``what``); returns it and the buffer size the kernel granted."""
+    family = socket.AF_INET6 if ":" in host else socket.AF_INET
+    sock = socket.socket(family, socket.SOCK_DGRAM)
+    granted = request_receive_buffer(sock, receive_buffer_bytes)
+    bind_udp(sock, host, port, what)
+    return sock, granted
 
 
 def kernel_drops(sock: socket.socket) -> int | None:

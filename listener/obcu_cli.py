@@ -76,13 +76,12 @@ def run(args: argparse.Namespace) -> int:
     import csv
     import json
     import signal
-    import socket
     import sys
 
     from listener.config import read_master_key
     from listener.defaults import DEFAULT_OBCU_PORT
     from listener.errors import ConfigError
-    from listener.netaddr import bind_udp, kernel_drops, request_receive_buffer
+    from listener.netaddr import kernel_drops, open_udp
     from listener.obcu import MockObcu, ObcuConfig
 
     port = DEFAULT_OBCU_PORT if args.port is None else args.port
@@ -156,10 +155,7 @@ def run(args: argparse.Namespace) -> int:
             def error_received(self, exc):
                 pass
 
-        family = socket.AF_INET6 if ":" in cfg.bind else socket.AF_INET
-        sock = socket.socket(family, socket.SOCK_DGRAM)
-        granted = request_receive_buffer(sock, args.receive_buffer)
-        bind_udp(sock, cfg.bind, cfg.port, "OBCU socket (--bind, --port)")
+        sock, granted = open_udp(cfg.bind, cfg.port, args.receive_buffer, "OBCU socket (--bind, --port)")
         transport, proto = await loop.create_datagram_endpoint(Proto, sock=sock)
 
         def on_timer():

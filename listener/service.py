@@ -32,7 +32,7 @@ from listener import checkpoint as ckpt
 from listener.codec import HEADER_SIZE, INPUT_FORMS, RejectReason, SensorType
 from listener.config import ListenerConfig
 from listener.jsonlog import JsonLogger
-from listener.netaddr import address_error, bind_udp, kernel_drops, request_receive_buffer
+from listener.netaddr import address_error, kernel_drops, open_udp
 from listener.pipeline import BatchCounts, Pipeline
 from listener.sdnotify import Notifier, watchdog_interval_s
 
@@ -337,10 +337,8 @@ class ListenerService:
 
     def _open_input_socket(self) -> socket.socket:
         inp = self.cfg.input
-        family = socket.AF_INET6 if ":" in inp.bind else socket.AF_INET
-        sock = socket.socket(family, socket.SOCK_DGRAM)
-        self.receive_buffer_granted = request_receive_buffer(sock, inp.receive_buffer_bytes)
-        bind_udp(sock, inp.bind, inp.port, "input socket (input.bind, input.port)")
+        sock, self.receive_buffer_granted = open_udp(inp.bind, inp.port, inp.receive_buffer_bytes,
+                                                     "input socket (input.bind, input.port)")
         sock.setblocking(False)
         return sock
 

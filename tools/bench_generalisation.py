@@ -231,9 +231,6 @@ def coverage_interval(covered_per_seed, confidence: float = 0.9) -> tuple[float,
         return (math.nan, math.nan)
     hits = np.array([float(np.sum(c)) for c in covered_per_seed])
     n = np.array([float(np.size(c)) for c in covered_per_seed])
-    if np.all(hits * n.sum() == n * hits.sum()):  # every seed at the pooled coverage: no spread
-        pooled = float(hits.sum() / n.sum())
-        return (pooled, pooled)
 
     def pooled_share(h, m, axis=-1):
         return np.sum(h, axis=axis) / np.sum(m, axis=axis)
