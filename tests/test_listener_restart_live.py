@@ -160,6 +160,14 @@ def _events(log: Path) -> list[dict]:
     return [json.loads(line) for line in log.read_text().splitlines() if line.startswith("{")]
 
 
+def _story(log: Path) -> str:
+    """The listener log without its routine lines (outputs, metrics, status): starts, checkpoints,
+    resumes, warnings and exits, which a failure message needs to name its cause."""
+    routine = ("metrics", "status", "reasons", "link_state", "sender_bound")
+    lines = [line for line in log.read_text().splitlines() if line.startswith("{")]
+    return "\n".join(line[:400] for line in lines if json.loads(line).get("event") not in routine)
+
+
 def _truth_error(world, rows) -> np.ndarray:
     run = world["run"]
     msgs = [decode_output(d[:18]) for _, d in rows]
@@ -201,7 +209,7 @@ def test_kill_9_at_a_random_time_resumes_within_3_s_and_seq_continues(world, tmp
                 p.kill()
         obcu.close()
     after = [r for r in obcu.rows if r[0] > t_kill]
-    assert before and after
+    assert before and after, f"{len(before)} outputs before the kill, {len(after)} after:\n{_story(log)}"
     resumed_in = after[0][0] - t_restart
     assert resumed_in < 3.0, resumed_in
     last_before = decode_output(before[-1][1]).seq
