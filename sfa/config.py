@@ -134,6 +134,11 @@ class FilterConfig:
     gps_nominal_sigma_h_m: float = slot(1.5, "K_GPS_NOMINAL_SIGMA_H")
     #: cross-track uncertainty of the digitised centre line [m]
     track_lateral_sigma_m: float = slot(0.3, "K_TRACK_LAT")
+    #: correlation length of that lateral error along the track: the fixes inside one length share one
+    #: draw of it, so each fix's lateral term is multiplied by n_c = L / (|v| dt) (>= 1; dt since the
+    #: last fix in use) instead of counting it as new information n_c times, as the gyro windows'
+    #: curvature term (curvature_corr_length_m). 0 (the default here): independent per fix [m]
+    track_lateral_corr_length_m: float = slot(0.0, "K_TRACK_LAT_CORR_M")
     #: oldest GNSS fix still applied by back-propagation [s]
     gps_late_max_s: float = slot(0.5, "K_GPS_LATE_MAX")
     #: memory of the adaptive GNSS error model: sigma_g, tau and sigma_w estimated from the fixes'

@@ -210,6 +210,7 @@ from sfa.layout import (
     K_STILL_FX_STD,
     K_STILL_SPEED,
     K_TRACK_LAT,
+    K_TRACK_LAT_CORR_M,
     K_USE_GYRO,
     K_Z_INTERVAL,
     K_ZUPT_SIGMA,
@@ -266,6 +267,9 @@ GYRO_LAM_MAX = 1.0e4  #: largest learned curvature-error scale (the gyro then te
 GYRO_LAM_PRIOR = 0.25
 GPS_IEKF_ITERATIONS = 3  #: Gauss-Newton re-linearisations of a GNSS fix in the arc length (step_gps)
 GPS_IEKF_TOL_M = 1e-3  #: they stop once the linearisation point moves less than this [m]
+#: most fixes one draw of the centre line's lateral error is shared by (lateral_variance): bounds R at a
+#: standstill, where every fix sees the same offset [-]
+LAT_NC_MAX = 1.0e4
 
 
 def _into_imu_step(expr, caller_ir, callee_ir) -> bool:
@@ -1395,11 +1399,10 @@ def gps_model(x, ts, te, tn, dl, s_lin):
 
 
 @njit(cache=True, _nrt=True)  # allocates R
-def gps_noise_matrix(cfg, sw, ue, un, dl):
-    """R of a fix: sw^2 I + sigma_lat^2 n n' (n = unit normal to the track: digitisation / lateral
-    offset; (ue, un) the unit tangent), plus, for a fix dl > 0 older than the state, the speed noise over
-    dl, q dl^3 / 3, along the tangent."""
-    sl2 = cfg[K_TRACK_LAT] ** 2
+def gps_noise_matrix(cfg, sw, ue, un, dl, sl2):
+    """R of a fix: sw^2 I + sl2 n n' (n = unit normal to the track; sl2 the centre line's lateral
+    variance as this fix counts it, :func:`lateral_variance`; (ue, un) the unit tangent), plus, for a fix
+    dl > 0 older than the state, the speed noise over dl, q dl^3 / 3, along the tangent."""
     R = np.zeros((2, 2))
     R[0, 0] = sw * sw + sl2 * un * un
     R[1, 1] = sw * sw + sl2 * ue * ue
@@ -1412,6 +1415,21 @@ def gps_noise_matrix(cfg, sw, ue, un, dl):
         R[0, 1] += qa * ue * un
         R[1, 0] += qa * ue * un
     return R
+
+
+@njit(cache=True, _nrt=False)
+def lateral_variance(x, aux, cfg, t):
+    """The centre line's lateral variance in a fix's R [m^2]: sigma_lat^2, times n_c = L / (|v| dt)
+    (>= 1, at most LAT_NC_MAX) when the error is correlated over L = K_TRACK_LAT_CORR_M metres and the
+    train moved |v| dt since the last fix in use: the n_c fixes inside one correlation length see one
+    draw of the map's offset, which does not average out (at a standstill they all see the same)."""
+    sl2 = cfg[K_TRACK_LAT] ** 2
+    if cfg[K_TRACK_LAT_CORR_M] > 0.0:
+        step = abs(x[V]) * max(t - aux[A_T_GPS], 0.0)
+        nc = cfg[K_TRACK_LAT_CORR_M] / step if step * LAT_NC_MAX > cfg[K_TRACK_LAT_CORR_M] else LAT_NC_MAX
+        if nc > 1.0:
+            sl2 *= nc
+    return sl2
 
 
 @njit(cache=True, _nrt=True)  # calls gps_model (allocates)
@@ -1444,6 +1462,7 @@ def step_gps(x, P, aux, cnt, cfg, ts, te, tn, tg, t, east, north, sigma_h, fix_q
         gnss_noise.observe(aux, cfg, t, c_x, n_e, n_n, s_foot, sigma_h)
     # white noise: the model's white sigma, scaled up when the receiver reports a worse sigma_h
     sw = gnss_noise.white_sigma(aux, sigma_h)
+    sl2 = lateral_variance(x, aux, cfg, t)
     # iterated EKF in the arc length (Bell & Cathey): h is linearised at the posterior's s, found by at
     # most GPS_IEKF_ITERATIONS Gauss-Newton steps from the prior's. Where the line bends between the
     # estimate and the fix, the tangent at the estimate points away from the fix and one linearisation's
@@ -1463,7 +1482,7 @@ def step_gps(x, P, aux, cnt, cfg, ts, te, tn, tg, t, east, north, sigma_h, fix_q
         tnorm = math.sqrt(de * de + dn * dn)
         ue = de / tnorm
         un = dn / tnorm
-        R = gps_noise_matrix(cfg, sw, ue, un, dl)
+        R = gps_noise_matrix(cfg, sw, ue, un, dl, sl2)
         s00, s01, s11, si00, si01, si11, nis, logdet = innovation2(P, aux, H, R, y)
         if it == GPS_IEKF_ITERATIONS:
             break

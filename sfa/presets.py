@@ -66,6 +66,12 @@ GROUND_TRUTH_SIGMA_M = 0.01
 #: (vertices from aerial imagery, shapes from timetable tools); an RTK receiver sees that offset
 #: in full, and a smaller value lets it pull the arc length in every curve.
 TRACK_LATERAL_SIGMA_M = 1.0
+#: length along the track over which that error is one draw [m]: the import's 20 m Gaussian smoothing
+#: spreads a vertex's error over about twice its sigma, as for the curvature error
+#: (curvature_corr_length_m). The fixes inside it share the offset, which does not average out: counted
+#: as independent at 10 Hz, an RTK receiver's error state learnt a 0.7 m map offset and carried it
+#: along the track after the next curve (docs/filter.md, "The map is not the track")
+TRACK_LATERAL_CORR_LENGTH_M = 40.0
 
 
 @dataclass(frozen=True)
@@ -240,6 +246,7 @@ def datasheet_config_for(
         use_gyro=False,
         gps_white_sigma_m=max(gps_spec.white_sigma_m, 1e-3),
         track_lateral_sigma_m=TRACK_LATERAL_SIGMA_M,
+        track_lateral_corr_length_m=TRACK_LATERAL_CORR_LENGTH_M,
         curvature_rel_sigma=0.25,
         curvature_registration_m=20.0,
         curvature_corr_length_m=40.0,

@@ -87,9 +87,12 @@ def test_recovers_from_the_wrong_branch():
 
 
 def test_relocalises_off_the_wrong_branch():
-    """The old scoring still takes the wrong branch on seed 8; the relocalisation brings the estimate
-    back once the fixes have been rejected for ``reacquire_s`` (30 s) and disagree along line 8."""
-    longest, counters = _longest_off_track_s(8, cusum_min_interval_s=0.0)
+    """The old scoring with the old lateral model still takes the wrong branch on seed 8; the
+    relocalisation brings the estimate back once the fixes have been rejected for ``reacquire_s`` (30 s)
+    and disagree along line 8. (With the map's lateral error correlated along the track, session 18,
+    the old scoring alone no longer takes it: the 10 Hz fixes beside line 8's geometry share one draw of
+    the map's offset and stop outvoting line 2.)"""
+    longest, counters = _longest_off_track_s(8, cusum_min_interval_s=0.0, track_lateral_corr_length_m=0.0)
     assert counters["relocalisations"] >= 1
     assert longest <= 35.0, f"estimate more than 10 m from the train for {longest:.0f} s"
 

@@ -77,12 +77,19 @@ def layout_header() -> str:
     for name in ("LAG_TOL_S", "MIN_NORMAL_DOT", "MIN_PAIR_DISTANCE_M", "CLIP_SIGMA", "FLOOR_GM",
                  "FLOOR_WHITE", "CEILING", "TAU_MIN_S", "TAU_N"):
         lines.append(f"#define GN_{name} {getattr(gnss_noise, name)!r}")
-    from sfa.kernels import COS_MAX_ROLL, GPS_IEKF_ITERATIONS, GPS_IEKF_TOL_M, GYRO_LAM_MAX, GYRO_LAM_PRIOR
+    from sfa.kernels import (
+        COS_MAX_ROLL,
+        GPS_IEKF_ITERATIONS,
+        GPS_IEKF_TOL_M,
+        GYRO_LAM_MAX,
+        GYRO_LAM_PRIOR,
+        LAT_NC_MAX,
+    )
 
     lines += [f"#define NVALS {NV}", f"#define COS_MAX_ROLL {COS_MAX_ROLL!r}",
               f"#define GYRO_LAM_MAX {GYRO_LAM_MAX!r}", f"#define GYRO_LAM_PRIOR {GYRO_LAM_PRIOR!r}",
               f"#define GPS_IEKF_ITERATIONS {GPS_IEKF_ITERATIONS}",
-              f"#define GPS_IEKF_TOL_M {GPS_IEKF_TOL_M!r}",
+              f"#define GPS_IEKF_TOL_M {GPS_IEKF_TOL_M!r}", f"#define LAT_NC_MAX {LAT_NC_MAX!r}",
               "#endif", ""]
     return "\n".join(lines)
 

@@ -1053,6 +1053,12 @@ static long step_gps(double *x, double *P, double *aux, long *cnt, const double 
     }
     double sw = gn_white_sigma(aux, sigma_h);
     double sl2 = sq(cfg[K_TRACK_LAT]);
+    if (cfg[K_TRACK_LAT_CORR_M] > 0.0) { /* lateral_variance: the fixes in one length share the map's offset */
+        double step = fabs(x[V]) * gn_max(t - aux[A_T_GPS], 0.0);
+        double nc = step * LAT_NC_MAX > cfg[K_TRACK_LAT_CORR_M] ? cfg[K_TRACK_LAT_CORR_M] / step : LAT_NC_MAX;
+        if (nc > 1.0)
+            sl2 *= nc;
+    }
     /* iterated EKF in the arc length: gps_model linearised at s_lin, Gauss-Newton steps from x[S] */
     double e, n, de = 0.0, dn = 0.0, ue = 0.0, un = 0.0;
     double H[2 * NX] = {0}, R[4] = {0}, y[2];
