@@ -175,13 +175,13 @@ def _truth_error(world, rows) -> np.ndarray:
     return np.abs(np.array([m.arc_length for m in msgs]) - np.interp(epochs, run.t_s, run.s_m))
 
 
-@pytest.mark.parametrize("seed", [1, 2])
-def test_kill_9_at_a_random_time_resumes_within_3_s_and_seq_continues(world, tmp_path, seed):
-    rng = np.random.default_rng(seed)
-    kill_after = float(rng.uniform(8.0, 16.0))
+def _kill_and_restart(world, tmp_path: Path, kill_after: float):
+    """One listener killed with SIGKILL kill_after seconds into the stream, a second started on its
+    checkpoint and run to the stream's STOP: (OBCU rows, t_kill, t_restart, log, the checkpoint's body as
+    the kill left it)."""
     lport, obcu = free_udp_port(), Obcu()
     log, ckpt = tmp_path / "listener.log", tmp_path / "state" / "ck.json"
-    ckpt.parent.mkdir()
+    ckpt.parent.mkdir(parents=True)
     args = ("--set", f'checkpoint.path="{ckpt}"')
     procs = []
     try:
@@ -196,7 +196,7 @@ def test_kill_9_at_a_random_time_resumes_within_3_s_and_seq_continues(world, tmp
         first.wait(timeout=10)
         t_kill = time.monotonic()
         assert ckpt.exists()
-        before = [r for r in obcu.rows if r[0] <= t_kill]
+        at_kill = ck.decode(ckpt.read_bytes())
         t_restart = time.monotonic()
         second = _listener(world, log, lport, obcu.port, *args)
         procs.append(second)
@@ -208,7 +208,26 @@ def test_kill_9_at_a_random_time_resumes_within_3_s_and_seq_continues(world, tmp
             if p.poll() is None:
                 p.kill()
         obcu.close()
-    after = [r for r in obcu.rows if r[0] > t_kill]
+    return obcu.rows, t_kill, t_restart, log, ckpt, at_kill
+
+
+@pytest.mark.parametrize("seed", [1, 2])
+def test_kill_9_at_a_random_time_resumes_within_3_s_and_seq_continues(world, tmp_path, seed):
+    rng = np.random.default_rng(seed)
+    kill_after = float(rng.uniform(8.0, 16.0))
+    # The premise is a filter the first listener vouched for at its last checkpoint. The mock sensors are
+    # threads of this (test) process: under CI load they once fell silent for 0.7 s, the filter had no
+    # motion sensor (LOST), the vital supervision latched decay as it must (tests/test_listener_vital*),
+    # and the checkpoint held no filter to resume. Such a run says nothing about resuming: it is run
+    # again, once, and a second one fails with the log.
+    for attempt in range(2):  # bounded: at most two streams of 36 s
+        rows, t_kill, t_restart, log, ckpt, at_kill = _kill_and_restart(world, tmp_path / f"try{attempt}",
+                                                                        kill_after)
+        if at_kill.get("filter") is not None:
+            break
+    assert at_kill.get("filter") is not None, f"no filter vouched at the kill, twice:\n{_story(log)}"
+    before = [r for r in rows if r[0] <= t_kill]
+    after = [r for r in rows if r[0] > t_kill]
     assert before and after, f"{len(before)} outputs before the kill, {len(after)} after:\n{_story(log)}"
     resumed_in = after[0][0] - t_restart
     assert resumed_in < 3.0, resumed_in
