@@ -164,8 +164,7 @@ def _story(log: Path) -> str:
     """The listener log without its routine lines (outputs, metrics, status): starts, checkpoints,
     resumes, warnings and exits, which a failure message needs to name its cause."""
     routine = ("metrics", "status", "reasons", "link_state", "sender_bound")
-    lines = [line for line in log.read_text().splitlines() if line.startswith("{")]
-    return "\n".join(line[:400] for line in lines if json.loads(line).get("event") not in routine)
+    return "\n".join(json.dumps(e)[:400] for e in _events(log) if e.get("event") not in routine)
 
 
 def _truth_error(world, rows) -> np.ndarray:
