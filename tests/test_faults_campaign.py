@@ -102,6 +102,10 @@ def test_replay_row_injected_equals_counted_and_is_deterministic(tmp_path):
     assert {k: v for k, v in row.items() if k != "wall_s"} == {
         k: v for k, v in again.items() if k != "wall_s"
     }
+    outputs = (tmp_path / "a" / "lossy" / "outputs.csv").read_text()
+    assert outputs == (tmp_path / "b" / "lossy" / "outputs.csv").read_text()  # deterministic
+    lines = outputs.splitlines()
+    assert lines[0].startswith("t_s,truth_arc_m,arc_m,error_m") and len(lines) > 50
     trace = json.loads((tmp_path / "a" / "lossy" / "trace.json").read_text())
     assert trace["input_proxy"]["received"] > 1000  # 12 s of IMU 100 Hz, odometer 20 Hz, GNSS, control
 

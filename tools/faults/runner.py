@@ -2,7 +2,8 @@
 
 :func:`run_scenario` is what the campaign's executors call, one scenario per worker process; it
 takes only picklable arguments and returns a plain dict, so a process pool or a Dask cluster can run
-it unchanged. Per-scenario artefacts (scenario TOML, logs, traces) go into ``out_dir/<name>/``.
+it unchanged. Per-scenario artefacts (scenario TOML, logs, traces, and each run's ``outputs.csv``: its
+error and interval over time, :mod:`tools.faults.timeline`) go into ``out_dir/<name>/``.
 """
 
 from __future__ import annotations
@@ -19,6 +20,7 @@ import numpy as np
 from tools.faults.errors import CampaignError, ModeUnsupported
 from tools.faults.evaluate import Observation, evaluate_pooled
 from tools.faults.spec import ScenarioSpec
+from tools.faults.timeline import write_outputs_csv
 
 
 def build_scenario(spec: ScenarioSpec):
@@ -155,6 +157,7 @@ def run_scenario(spec: ScenarioSpec, mode: str, out_dir: str) -> dict[str, Any]:
             where = out if spec.seeds == 1 else out / f"seed{k}"
             where.mkdir(exist_ok=True)
             runs.append(run(spec.repetition(k), where))
+            write_outputs_csv(runs[-1], where / "outputs.csv")  # the run's error and interval over time
             runs[-1].wall_s = time.perf_counter() - t0 - sum(r.wall_s for r in runs[:-1])
         row = evaluate_pooled(runs, spec.expect)
     except ModeUnsupported as exc:
