@@ -112,6 +112,15 @@ def _recovery(obs: Observation) -> tuple[float | None, float | None]:
     return (max(degraded) if degraded else None), (max(recover) if recover else None)
 
 
+def fault_mask(obs: Observation) -> np.ndarray:
+    """True for each fresh output whose epoch (from the scenario start) lies in a sensor-fault window."""
+    rel = obs.fresh_epoch - obs.start_epoch_s
+    mask = np.zeros(rel.size, dtype=bool)
+    for a, b in obs.sensor_fault_windows:
+        mask |= (rel >= a) & (rel < b)
+    return mask
+
+
 def evaluate(obs: Observation, expect: dict[str, Any]) -> dict[str, Any]:
     """One results row: figures, then ``checks`` (PASS/FAIL per expectation) and ``verdict``."""
     row, checks = _figures(obs, expect)
@@ -145,10 +154,7 @@ def _figures(obs: Observation, expect: dict[str, Any]) -> tuple[dict[str, Any], 
     fault_cov = None
     reasons: set[str] = set(obs.reasons_seen)
     if obs.sensor_fault_windows:
-        rel = obs.fresh_epoch - obs.start_epoch_s
-        mask = np.zeros(rel.size, dtype=bool)
-        for a, b in obs.sensor_fault_windows:
-            mask |= (rel >= a) & (rel < b)
+        mask = fault_mask(obs)
         if mask.any():
             sub = accuracy(obs.fresh_epoch[mask], obs.fresh_arc[mask], obs.truth_epoch, obs.truth_arc,
                            obs.fresh_lo[mask], obs.fresh_hi[mask])

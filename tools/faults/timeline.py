@@ -16,7 +16,7 @@ from pathlib import Path
 import numpy as np
 
 from tools.accuracy import along_track_errors
-from tools.faults.evaluate import Observation
+from tools.faults.evaluate import Observation, fault_mask
 
 #: the columns of ``outputs.csv``: sensor time from the scenario start [s], the truth's and the output's
 #: arc length [m], their difference [m], the interval [m], whether it holds the truth, the STATUS byte
@@ -41,18 +41,19 @@ def timeline(obs: Observation, step_s: float = STEP_S) -> list[tuple]:
     left out (as in the row's figures)."""
     rel = obs.fresh_epoch - obs.start_epoch_s
     err = along_track_errors(obs.fresh_epoch, obs.fresh_arc, obs.truth_epoch, obs.truth_arc)
+    truth_at = np.interp(obs.fresh_epoch, obs.truth_epoch, obs.truth_arc)  # as tools.accuracy's coverage
+    in_fault = fault_mask(obs)
     rows = []
     for i in thinned(rel, step_s):
         if not math.isfinite(err[i]):
             continue
-        truth = float(obs.fresh_arc[i] - err[i])
+        truth = float(truth_at[i])
         lo, hi = float(obs.fresh_lo[i]), float(obs.fresh_hi[i])
-        in_fault = any(a <= rel[i] < b for a, b in obs.sensor_fault_windows)
         status = "" if obs.fresh_status is None else int(obs.fresh_status[i])
         reasons = "" if obs.fresh_reasons is None else " ".join(obs.fresh_reasons[i])
         rows.append((round(float(rel[i]), 3), round(truth, 3), round(float(obs.fresh_arc[i]), 3),
                      round(float(err[i]), 3), round(lo, 3), round(hi, 3), int(lo <= truth <= hi), status,
-                     int(in_fault), reasons))
+                     int(in_fault[i]), reasons))
     return rows
 
 
