@@ -42,6 +42,16 @@ def _model(aux):
     return aux[L.A_GM_SIG], aux[L.A_GM_TAU], aux[L.A_GW_SIG]
 
 
+def _seconds(aux) -> float:
+    """Seconds of data behind the best-observed lag (what fit's inflation is computed from)."""
+    return float(np.max(aux[L.A_AD_W + 1:L.A_AD_W + L.AD_NMOM]))
+
+
+def _fitted_sigma_g(aux) -> float:
+    """The correlated sigma as estimated, before fit adds its standard error."""
+    return float(aux[L.A_GM_SIG] / math.sqrt(G.variance_inflation(aux[L.A_GM_TAU], _seconds(aux))))
+
+
 def test_off_keeps_the_preset_exactly():
     cfg = _cfg(window_s=0.0)
     aux = np.zeros(L.NAUX)
@@ -62,9 +72,36 @@ def test_recovers_the_receivers_statistics(rate_hz, sigma_g, tau, sigma_w):
     G.reset(aux, cfg)
     _feed(aux, cfg, _receiver(n, dt, sigma_g, tau, sigma_w, seed=7), dt)
     sg, tau_hat, sw = _model(aux)
-    assert sg == pytest.approx(sigma_g, rel=0.25)
+    assert _fitted_sigma_g(aux) == pytest.approx(sigma_g, rel=0.25)
     assert tau / 2.0 <= tau_hat <= tau * 2.0
     assert sw == pytest.approx(sigma_w, rel=0.35)
+    # in use: the estimate plus one standard error, sqrt(2 tau / T) relative with T the 600 s memory
+    assert _seconds(aux) == pytest.approx(600.0)
+    assert sg ** 2 == pytest.approx(_fitted_sigma_g(aux) ** 2 * (1.0 + math.sqrt(2.0 * tau_hat / 600.0)))
+
+
+def test_variance_inflation_is_one_standard_error():
+    """1 + sqrt(2 tau / T) (Bartlett's variance of a Gauss-Markov variance estimate), T at least tau."""
+    assert G.variance_inflation(20.0, 300.0) == pytest.approx(1.0 + math.sqrt(40.0 / 300.0))
+    assert G.variance_inflation(60.0, 30.0) == G.variance_inflation(60.0, 60.0) == 1.0 + math.sqrt(2.0)
+    values = [G.variance_inflation(20.0, t) for t in (20.0, 60.0, 300.0, 600.0, 1e6)]
+    assert all(a > b for a, b in zip(values, values[1:], strict=False)) and values[-1] < 1.01
+
+
+def test_the_correlated_sigma_in_use_narrows_as_data_accumulates():
+    """On one receiver, the standard error added after 120 s of fixes is larger than after 600 s, and the
+    model in use is never below the estimate: a short record widens the interval, it never narrows it."""
+    c = _receiver(600, 1.0, 1.5, 20.0, 0.8, seed=13)
+    cfg = _cfg()
+    aux = np.zeros(L.NAUX)
+    G.reset(aux, cfg)
+    ratios = []
+    for k, ck in enumerate(c):  # 1 Hz, along a straight east-going track at 10 m/s
+        G.observe(aux, cfg, 1000.0 + k, float(ck), 0.0, 1.0, 10.0 * k, 2.0)
+        if (k + 1) % 120 == 0:
+            ratios.append(aux[L.A_GM_SIG] / _fitted_sigma_g(aux))
+    assert all(r >= 1.0 for r in ratios)
+    assert ratios[0] > ratios[-1] > 1.0
 
 
 def test_floors_and_ceiling():

@@ -61,16 +61,16 @@ from track_db import TrackDatabase
 GOLDEN = {
     "tram-urban": ("d00971dbd998bcc4f60608d307515912d7c6b8fc0bf74cdd4079ad5eb9e1461e", {
         "model-matched": "8752159fd1370dc8c29bd0778cf13d9a0aac5814661c750d8e2d0b7b93b02397",
-        "datasheet": "5a12b9e6eaa7e1457ad7d916c2786c4a0202d12974ff7623537517f9d5eccacf"}),
+        "datasheet": "3ebde27519122450e4ba2629ff1e6d94708c3e8c8b23ccb38b332b83de75a7e3"}),
     "tram-urban-strobe-lossy": ("4cc40b9aa5efad4d4a7a3ff50f41dd6e26df0daeadc884b0979c8063b84654b0", {
         "model-matched": "b752846dccdc3a9d930ffc2d04f65120b919d18fa407cc1eb0ee2964b5128aeb",
-        "datasheet": "4de2ba03cfe8bc395adf17517e53cab9679c6efd189fa037fe3484bcd95b36ef"}),
+        "datasheet": "a3bde384dd48c489b4c6002e96c1a07ce6b22840b06b398f2b4d3968e579e020"}),
     "regional-tunnel": ("acd48cd640dc2305c2c6a535e31b552968e7c2ef8bf61512fbb7c15fa8530ba2", {
         "model-matched": "5b801593ca66d7f513f84095f7030af64eb391237dd5947282d02eaae7f789dd",
-        "datasheet": "dd75683a1cdc3d1b1e941d5aa5d5151cb8655485b47574e8e931606a070eda8f"}),
+        "datasheet": "2c17958fdd2f801eadd1225d13184bd42263136cb6a88f3e7f242b8963dc43fd"}),
     "tram-faults": ("810b91fee2760d48c96207b3d5aae070b52a30c064257c65886a22513faec068", {
         "model-matched": "77a7a357c41a49f860ab2ea518ae01616f38206de9c3e2fc78f1b889b700163c",
-        "datasheet": "a7621336d4b149305aaae4359e714aa161272db670934e48435fb677b51d10c6"}),
+        "datasheet": "1b0d16494951edfc36c1791e566a3e4346a4a6b8ab9b2ff1cf0b095736bc4832"}),
 }
 #: (capture, preset family) pairs, each family's hash checked on every capture
 CASES = [(name, presets) for name in sorted(GOLDEN) for presets in ("datasheet", "model-matched")]

@@ -149,7 +149,12 @@ static void gn_fit(double *aux, const double *cfg) {
     double m0 = aux[A_AD_M];
     double s2 = gn_min(best_s2, m0);
     double top = GN_CEILING * aux[A_AD_SH];
-    aux[A_GM_SIG] = gn_max(gn_min(sqrt(s2), top), GN_FLOOR_GM * cfg[K_GM_SIGMA]);
+    double seconds = 0.0;  /* seconds of data behind the best-observed lag */
+    for (int i = 1; i < AD_NMOM; i++)
+        seconds = gn_max(seconds, aux[A_AD_W + i]);
+    /* gnss_noise.variance_inflation: the fitted correlated variance plus one standard error */
+    double infl = 1.0 + sqrt(2.0 * best_tau / gn_max(seconds, best_tau));
+    aux[A_GM_SIG] = gn_max(gn_min(sqrt(s2 * infl), top), GN_FLOOR_GM * cfg[K_GM_SIGMA]);
     aux[A_GM_TAU] = best_tau;
     aux[A_GW_SIG] = gn_max(gn_min(sqrt(gn_max(m0 - s2, 0.0)), top), GN_FLOOR_WHITE * cfg[K_GPS_WHITE]);
 }
