@@ -367,6 +367,7 @@ def run_segment(kind, t, vals, i0, stop_jumps, X, PP, AUX, CNT, MEM, IDX, order,
         accepted = False
         explained = False  # a fix within some hypothesis's gate, whether or not it updated it
         t_gps_prev = AUX[order[rep], L.A_T_GPS]  # the previous fix in use (the step below moves it)
+        t_odo_prev = AUX[order[rep], L.A_T_ODO_SEEN]  # the previous valid odometer sample
         # solution separation's GNSS exclusion (one decision for the bank, kept in every hypothesis's
         # aux): a valid fix goes to no hypothesis
         skip = separating and k == 3 and SEP.gnss_excluded(AUX[order[rep]], ti) and v[3] != 0.0 \
@@ -422,8 +423,14 @@ def run_segment(kind, t, vals, i0, stop_jumps, X, PP, AUX, CNT, MEM, IDX, order,
                 # urban-gnss seed 52)
                 # a fix carries the share of an independent fix's evidence the CUSUM gives it
                 # (kernels.gps_evidence_weight): a 10 Hz receiver's fixes counted one by one pruned the
-                # right branch within 1.5 s of a diverging junction (tests/test_wrong_branch_recovery)
-                wt = K.gps_evidence_weight(ti, t_gps_prev, cfg) if k == 3 else 1.0
+                # right branch within 1.5 s of a diverging junction (tests/test_wrong_branch_recovery);
+                # an odometer sample its share of odo_evidence_interval_s: 20 Hz samples counted one by
+                # one pruned the right sense of travel 0.5 s into a departure, where its speed ran
+                # 0.1 m/s above the odometer's (urban-gnss seed 23, the same test module)
+                if k == 3:
+                    wt = K.gps_evidence_weight(ti, t_gps_prev, cfg)
+                else:
+                    wt = K.evidence_weight(ti, t_odo_prev, cfg[L.K_ODO_EVIDENCE_DT])
                 score(order, nh, AUX, L.A_LAST_NIS_ODO if k == 2 else L.A_LAST_NIS_GPS, cap, wt)
                 prune(order, ns, X, AUX, IDX, G, LOFF, LLEN, cfg, work_i, work_f)
         if k == 2 and cfg[L.K_REVERSAL] != 0.0 and AUX[order[ns[1]], L.A_STILL] != 0.0:

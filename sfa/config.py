@@ -262,6 +262,11 @@ class FilterConfig:
     reversal_log_prior: float = slot(4.6, "K_REVERSAL_PRIOR")
     #: NIS cap in the hypothesis likelihood (robust to outliers) [NIS]
     loglik_nis_cap: float = slot(50.0, "K_GPS_MAX_LOGLIK_NIS")
+    #: the line hypotheses' odometer score counts samples closer than this as the fraction dt / this of
+    #: one independent sample, as cusum_min_interval_s does for fixes: a hypothesis's speed error at a
+    #: departure persists for seconds, so 20 Hz samples are not 20x the evidence (urban-gnss seed 23's
+    #: right sense of travel pruned in 0.5 s; docs/filter.md). 0: every sample in full [s]
+    odo_evidence_interval_s: float = slot(1.0, "K_ODO_EVIDENCE_DT")
     # --- solution separation (sfa.separation; docs/filter.md, "Solution separation")
     #: life of each sub-filter (one aid left out) between re-anchorings to the reported hypothesis; two
     #: per aid, half a window apart (0: no sub-filters, no separation test) [s]

@@ -1361,15 +1361,22 @@ def step_odo(x, P, aux, cnt, mem, cfg, ts, tg, t, speed, sigma):
 
 # ============================================================== GNSS
 @njit(cache=True, inline="always", _nrt=False, error_model="numpy")
+def evidence_weight(t, t_prev, interval):
+    """The share of an independent measurement's evidence a measurement at t carries, t_prev the
+    previous one: min(1, (t - t_prev) / interval); 1 with the interval 0 or no previous measurement.
+    Measurements closer than ``interval`` [s] share their correlated error."""
+    if interval <= 0.0 or not math.isfinite(t_prev):
+        return 1.0
+    return min(1.0, max(t - t_prev, 0.0) / interval)
+
+
+@njit(cache=True, inline="always", _nrt=False, error_model="numpy")
 def gps_evidence_weight(t, t_prev, cfg):
     """The share of an independent fix's evidence a fix at t carries, t_prev the previous fix in use:
-    min(1, (t - t_prev) / cusum_min_interval_s); 1 with that interval 0 or no previous fix. Fixes
-    faster than that share their correlated error (and the map's): the ramp CUSUM (step_gps) and the
-    hypotheses' score (sfa.bank.run_segment) weight them by it."""
-    dt = cfg[K_CUSUM_DT]
-    if dt <= 0.0 or not math.isfinite(t_prev):
-        return 1.0
-    return min(1.0, max(t - t_prev, 0.0) / dt)
+    :func:`evidence_weight` over cusum_min_interval_s. Fixes faster than that share their correlated
+    error (and the map's): the ramp CUSUM (step_gps) and the hypotheses' score (sfa.bank.run_segment)
+    weight them by it."""
+    return evidence_weight(t, t_prev, cfg[K_CUSUM_DT])
 
 
 @njit(cache=True, inline="always", _nrt=False, error_model="numpy")

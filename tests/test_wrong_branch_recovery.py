@@ -106,3 +106,15 @@ def test_a_fix_inside_a_held_off_hypothesis_s_gate_still_scores():
     is reported from 15 s."""
     longest, _ = _longest_off_track_s(52, family="urban-gnss", duration_s=300.0, until_s=60.0)
     assert longest <= 2.0
+
+
+def test_a_departure_s_odometer_samples_do_not_prune_the_right_sense_of_travel():
+    """urban-gnss seed 23 (urban GNSS, 300 s world, held out in session 18): at the 176 s departure the
+    right sense of travel's speed ran 0.1 m/s above the odometer's, its slip detector gated the samples,
+    and the bank's score took each 20 Hz sample as independent evidence (about 5 log units each): it was
+    pruned 0.5 s in, and the mirrored sense went 461 m from the train for 30 s (13 km by the end of the
+    run, on a parallel line). An odometer sample now carries the share dt / odo_evidence_interval_s of
+    one independent sample's evidence (sfa.bank.run_segment); with every sample in full
+    (``odo_evidence_interval_s = 0``) this fails."""
+    longest, _ = _longest_off_track_s(23, family="urban-gnss", duration_s=300.0, until_s=230.0)
+    assert longest <= 2.0, f"estimate more than 10 m from the train for {longest:.0f} s"
