@@ -53,3 +53,65 @@ def test_bad_arguments_name_the_value(tmp_path, capsys):
         bound.main(["--truth", str(tmp_path / "missing.csv"), "--track", db, "--gm-sigma", "1",
                     "--gm-tau", "30", "--white", "1"])
     assert "missing.csv" in capsys.readouterr().err
+
+
+_CAMPAIGN = """
+[campaign]
+name = "bound"
+duration_s = 60.0
+seed = 1
+
+[base.scenario]
+name = "jena-line-2-short"
+seed = 3
+
+[base.journey]
+points = [{{ s_m = 100.0, kind = "stop", departure_s = 5.0 }}, {{ s_m = 3000.0, kind = "stop" }}]
+
+[base.sensors.gps.actual]
+gm_sigma_m = {gm}
+
+[[scenarios]]
+name = "clean"
+seeds = 2
+expect = {{ p95_m = 1.0 }}
+
+[[scenarios]]
+name = "no-accuracy-bound"
+expect = {{ crashes = 0 }}
+
+[[scenarios]]
+name = "multipath"
+sensor_faults = [{{ kind = "multipath_step", start_s = 20.0, end_s = 30.0, east_m = 30.0, north_m = 0.0 }}]
+expect = {{ p95_m = 3.0 }}
+"""
+
+
+def _campaign_bound(tmp_path, capsys, gm: float, rows=()) -> dict[str, float]:
+    bound = load_benchmark_module("bench_bound")
+    path = tmp_path / f"c{gm}.toml"
+    path.write_text(_CAMPAIGN.format(gm=gm), encoding="utf-8")
+    argv = ["--campaign", str(path)] + [a for r in rows for a in ("--row", r)]
+    assert bound.main(argv) == 0
+    found = re.findall(r"^(\S+): information bound p95 ([0-9.]+) m", capsys.readouterr().out, re.M)
+    return {name: float(v) for name, v in found}
+
+
+def test_bound_of_campaign_rows(tmp_path, capsys):
+    """The world's own GNSS error sets the bound; by default only rows with a p95 bound and no sensor
+    fault are taken (a faulted receiver is outside the bound's model), and --row picks any row."""
+    small = _campaign_bound(tmp_path, capsys, 0.5)
+    big = _campaign_bound(tmp_path, capsys, 2.0)
+    assert set(small) == set(big) == {"clean"}
+    assert 0.0 < small["clean"] < big["clean"]
+    assert set(_campaign_bound(tmp_path, capsys, 0.5, rows=["multipath"])) == {"multipath"}
+
+
+def test_bound_of_a_campaign_rejects_an_unknown_row(tmp_path, capsys):
+    bound = load_benchmark_module("bench_bound")
+    path = tmp_path / "c.toml"
+    path.write_text(_CAMPAIGN.format(gm=1.0), encoding="utf-8")
+    with pytest.raises(SystemExit):
+        bound.main(["--campaign", str(path), "--row", "nope"])
+    err = capsys.readouterr().err
+    assert "no such row" in err and "nope" in err

@@ -133,6 +133,7 @@ def run_one(args: tuple) -> dict:
     from sfa import baselines
     from sfa.presets import datasheet_config_for
     from tools.bench_replay import load_benchmark_module
+    from tools.info_bound import scenario_sigma
     from track_db import TrackDatabase
 
     acc = load_benchmark_module("bench_filter_accuracy")
@@ -154,7 +155,7 @@ def run_one(args: tuple) -> dict:
         err = np.abs(est[ok, 1] - np.interp(est[ok, 0], te, ts))
         out[key] = err
         out[f"{key}-covered"] = err <= c.interval_z() * est[ok, 2]
-    out["bound-sigma"] = run_bound_sigma(run, track, meas, sc, grid)
+    out["bound-sigma"] = scenario_sigma(sc, run, track, meas, grid)
     for key, res in (("plain-ekf", baselines.plain_filterpy_ekf(track, meas, cfg)),
                      ("odo-dr", baselines.odometer_dead_reckoning(meas))):
         b = acc.sample_baseline(res, grid)
@@ -162,21 +163,6 @@ def run_one(args: tuple) -> dict:
         out[key] = np.abs(b[ok, 1] - np.interp(b[ok, 0], te, ts))
     track.close()
     return out
-
-
-def run_bound_sigma(run, track, meas, sc, grid) -> np.ndarray:
-    """The information bound's along-track sigma at the grid times (tools.info_bound): the optimal
-    estimator that knows the world's GNSS error model and odometer scale distribution, with a perfect
-    map and an odometer perfect but for its scale."""
-    from sfa.measurements import GpsMeas
-    from tools.info_bound import GnssErrorModel, sigma_on_line
-
-    fixes = [m.t_s for m in meas if isinstance(m, GpsMeas) and m.fix_quality != 0
-             and math.isfinite(m.lat_deg + m.lon_deg)]
-    gps, odo = dict(sc.gps.actual), dict(sc.odometer.actual)
-    model = GnssErrorModel(float(gps["gm_sigma_m"]), float(gps["gm_tau_s"]), float(gps["white_sigma_m"]))
-    return sigma_on_line(track.line(int(run.truth["line_id"][0])), grid, run.truth["epoch"],
-                         run.truth["arc_length"], run.truth["speed"], fixes, model, float(odo["scale_sigma"]))
 
 
 def run_families(names, seeds: int, jobs: int = 1, step_s: float = 0.5, max_duration_s: float | None = 300.0,

@@ -125,6 +125,22 @@ def sigma_on_line(line, t_s, truth_t_s, truth_s_m, truth_speed_mps, fix_t_s, gns
                              odo_scale_sigma)
 
 
+def scenario_sigma(sc, run, track, meas, grid) -> np.ndarray:
+    """The bound's along-track sigma at the ``grid`` times of one simulated run: the world's actual
+    GNSS error model and odometer scale distribution (``interface_modules.scenario.actual_spec``: the
+    preset's figures with the scenario's ``actual`` values), at the fixes the receiver delivered
+    (``meas``: fix quality > 0, finite position), on the truth's line of ``track``."""
+    from interface_modules.scenario import actual_spec
+    from sfa.measurements import GpsMeas
+
+    fixes = [m.t_s for m in meas if isinstance(m, GpsMeas) and m.fix_quality != 0
+             and math.isfinite(m.lat_deg + m.lon_deg)]
+    gps, odo = actual_spec(sc.gps), actual_spec(sc.odometer)
+    model = GnssErrorModel(float(gps.gm_sigma_m), float(gps.gm_tau_s), float(gps.white_sigma_m))
+    return sigma_on_line(track.line(int(run.truth["line_id"][0])), grid, run.truth["epoch"],
+                         run.truth["arc_length"], run.truth["speed"], fixes, model, float(odo.scale_sigma))
+
+
 def expected_p95(sigmas: np.ndarray, q: float = 0.95) -> float:
     """p95 of the pooled |error| of zero-mean Gaussian errors with these sigmas [m] (bisection)."""
     sig = np.asarray(sigmas, dtype=float)
