@@ -1515,7 +1515,11 @@ def step_gps(x, P, aux, cnt, cfg, ts, te, tn, tg, t, east, north, sigma_h, fix_q
         nis_odo = y0 * (si00 * y0 + si01 * y1) + y1 * (si01 * y0 + si11 * y1)
         if min(nis, nis_odo) <= cfg[K_GATE_GPS]:
             cap = cfg[K_GPS_MAX_LOGLIK_NIS]
-            llr = aux[A_SLIP_LLR] + 0.5 * (min(nis, cap) - min(nis_odo, cap))
+            # a fix dt after the previous one in use votes min(1, dt / cusum_min_interval_s) of an
+            # independent fix's log-likelihood ratio (gps_evidence_weight): a 10 Hz receiver's fixes,
+            # counted one by one, declared the accelerometer faulty 1.5 s into a wheel spin
+            wt = gps_evidence_weight(t, aux[A_T_GPS], cfg)
+            llr = aux[A_SLIP_LLR] + wt * 0.5 * (min(nis, cap) - min(nis_odo, cap))
             aux[A_SLIP_LLR] = max(llr, -cfg[K_SLIP_ARB_LLR])
             aux[A_T_GPS] = t  # GNSS is alive and in use
         cnt[C_GPS_HELD] += 1

@@ -90,6 +90,14 @@ static double cross_track(const double *ts, const double *te, const double *tn, 
 static double gn_min(double a, double b) { return b < a ? b : a; }
 static double gn_max(double a, double b) { return b > a ? b : a; }
 
+/* kernels.gps_evidence_weight: the share of an independent fix's evidence a fix at t carries, t_prev
+   the previous fix in use: min(1, (t - t_prev) / cusum_min_interval_s); 1 with the interval 0 or no
+   previous fix */
+static double gps_evidence_weight(double t, double t_prev, const double *cfg) {
+    if (cfg[K_CUSUM_DT] <= 0.0 || !isfinite(t_prev)) return 1.0;
+    return gn_min(1.0, gn_max(t - t_prev, 0.0) / cfg[K_CUSUM_DT]);
+}
+
 static double gn_lag(int i) { return i == 0 ? 0.0 : AD_LAGS_S[i - 1]; }
 
 static void gn_restart(double *aux) {
@@ -1118,7 +1126,8 @@ static long step_gps(double *x, double *P, double *aux, long *cnt, const double 
         if (nmin <= cfg[K_GATE_GPS]) {
             double cap = cfg[K_GPS_MAX_LOGLIK_NIS];
             double a = cap < in.nis ? cap : in.nis, b = cap < nis_odo ? cap : nis_odo;
-            double llr = aux[A_SLIP_LLR] + 0.5 * (a - b);
+            double wt = gps_evidence_weight(t, aux[A_T_GPS], cfg);
+            double llr = aux[A_SLIP_LLR] + wt * 0.5 * (a - b);
             aux[A_SLIP_LLR] = -cfg[K_SLIP_ARB_LLR] > llr ? -cfg[K_SLIP_ARB_LLR] : llr;
             aux[A_T_GPS] = t;
         }
@@ -1181,13 +1190,7 @@ static long step_gps(double *x, double *P, double *aux, long *cnt, const double 
     double s_along = ue * (in.s00 * ue + in.s01 * un) + un * (in.s01 * ue + in.s11 * un);
     double r = along / sqrt(s_along);
     double kk = cfg[K_CUSUM_K];
-    double wt = 1.0;
-    if (cfg[K_CUSUM_DT] > 0.0) {
-        double gap = t - aux[A_T_GPS];
-        gap = gap > 0.0 ? gap : 0.0; /* Python's max(gap, 0.0) */
-        double f = gap / cfg[K_CUSUM_DT];
-        wt = f < 1.0 ? f : 1.0; /* min(1.0, f) */
-    }
+    double wt = gps_evidence_weight(t, aux[A_T_GPS], cfg);
     if (aux[A_SLIP] != 0.0) {
         wt = 0.0;
         aux[A_CUSUM_P] = 0.0;
