@@ -446,17 +446,11 @@ def _spin_world():
     """gnss-10hz world 112 of the generalisation benchmark (as-built truth, 10 Hz GNSS whose correlated
     error is 1.1 m / 34 s): the simulated wheel odometer spins 0.7-1.1 m/s above the truth from 249 to
     253 s into the run, while the train accelerates from 7 to 9.5 m/s."""
-    from interface_modules.offline import generate
     from interface_modules.tracks import database_path
-    from sfa.presets import datasheet_config_for
-    from tools.bench_generalisation import family_by_name, family_scenario
-    from tools.bench_replay import load_benchmark_module
+    from tools.bench_generalisation import family_world
 
-    sc, _ = family_scenario(family_by_name("gnss-10hz"), 112, 300.0)
-    run = generate(sc, 112)
-    meas = load_benchmark_module("bench_filter_accuracy").to_measurements(run.messages())
-    return (database_path(sc), meas, run.truth,
-            datasheet_config_for(sc.imu.preset, sc.odometer.preset, sc.gps.preset))
+    sc, run, meas, cfg = family_world("gnss-10hz", 112, 300.0)
+    return database_path(sc), meas, run.truth, cfg
 
 
 def _through_spin(path, meas, truth, cfg):

@@ -125,27 +125,35 @@ def family_scenario(family: Family, seed: int, max_duration_s: float | None):
     return sc.with_overrides(track=track, **modules), draw
 
 
+def family_world(family_name: str, seed: int, max_duration_s: float | None):
+    """One family and seed's world as the benchmark runs it: (scenario, simulated run, the filter's
+    measurements, the filter's datasheet configuration)."""
+    from interface_modules.offline import generate
+    from sfa.presets import datasheet_config_for
+    from tools.bench_replay import load_benchmark_module
+
+    family = family_by_name(family_name)
+    sc, _draw = family_scenario(family, seed, max_duration_s)
+    run = generate(sc, seed)
+    meas = load_benchmark_module("bench_filter_accuracy").to_measurements(run.messages())
+    presets = family.filter_presets or (sc.imu.preset, sc.odometer.preset, sc.gps.preset)
+    return sc, run, meas, datasheet_config_for(*presets)
+
+
 def run_one(args: tuple) -> dict:
     """One family and seed: per-estimator absolute errors, SFA's coverage samples."""
     family_name, seed, step_s, max_duration_s, overrides = args
-    from interface_modules.offline import generate
     from interface_modules.tracks import database_path
     from sfa import baselines
-    from sfa.presets import datasheet_config_for
     from tools.bench_replay import load_benchmark_module
     from tools.info_bound import scenario_sigma
     from track_db import TrackDatabase
 
     acc = load_benchmark_module("bench_filter_accuracy")
-    family = family_by_name(family_name)
-    sc, _draw = family_scenario(family, seed, max_duration_s)
+    sc, run, meas, cfg = family_world(family_name, seed, max_duration_s)
     track = TrackDatabase.open(database_path(sc))
-    run = generate(sc, seed)
-    meas = acc.to_measurements(run.messages())
     te, ts = run.truth["epoch"], run.truth["arc_length"]
     grid = np.arange(te[0] + step_s, te[-1], step_s)
-    presets = family.filter_presets or (sc.imu.preset, sc.odometer.preset, sc.gps.preset)
-    cfg = datasheet_config_for(*presets)
     if overrides:  # an ablation (--set): the same field values for SFA and SFA + gyro
         cfg = cfg.replace(**dict(overrides))
     out: dict = {"family": family_name, "seed": seed}
