@@ -5,6 +5,7 @@ per seed, the filter on the datasheet presets and the database of the source geo
 
 Usage: python benchmarks/bench_generalisation.py [--seeds 20] [--first-seed 0] [--family NAME ...]
        [--jobs 2] [--duration 300] [--step 0.5] [--real | --no-real] [--set FIELD=VALUE ...]
+       [--known-gnss]
 """
 
 from __future__ import annotations
@@ -38,7 +39,13 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--set", action="append", default=[], metavar="FIELD=VALUE",
                     help="FilterConfig field on top of the datasheet presets, for SFA only (an ablation; "
                          "repeatable), e.g. --set cusum_h_sigma=1e9")
+    ap.add_argument("--known-gnss", action="store_true",
+                    help="SFA is told each world's actual GNSS error model (sigma_g, tau, sigma_w, sigma_h) "
+                         "and learns none of it: perfect knowledge, an ablation that measures what learning "
+                         "the model costs (the baselines keep the datasheet's; no real-data rows)")
     args = ap.parse_args(argv)
+    if args.known_gnss and args.real:
+        ap.error("--known-gnss has no real-data rows: real data have no drawn GNSS model")
     names = args.family or [f.name for f in FAMILIES]
     if args.seeds < 1 or args.jobs < 1 or args.duration <= 0 or args.step <= 0 or args.first_seed < 0:
         ap.error("--seeds and --jobs must be >= 1, --first-seed >= 0, --duration and --step > 0")
@@ -47,15 +54,18 @@ def main(argv: list[str] | None = None) -> int:
         datasheet_config_for().replace(**overrides)  # unknown fields and bad values fail here, not per run
     except (ToolError, FilterConfigError) as exc:
         ap.error(str(exc))
+    known = "; SFA told each world's GNSS error model (perfect knowledge)" if args.known_gnss else ""
     t0 = time.time()
     rows = run_families(names, args.seeds, args.jobs, args.step, args.duration,
                         log=lambda m: print(m, file=sys.stderr), overrides=overrides,
-                        first_seed=args.first_seed)
-    if args.real if args.real is not None else not args.family:
+                        first_seed=args.first_seed, known_gnss=args.known_gnss)
+    if args.real if args.real is not None else not (args.family or args.known_gnss):
         rows += [real_data_row(r[0], overrides, log=lambda m: print(m, file=sys.stderr)) for r in REAL_DATA]
     print(markdown_table(rows))
     print(f"\n{args.seeds} seeds (from {args.first_seed}) x {len(names)} families, "
-          f"first {args.duration:g} s of each run, errors every {args.step:g} s; {time.time() - t0:.0f} s",
+          f"first {args.duration:g} s of each run, errors every {args.step:g} s"
+          f"{known}; "
+          f"{time.time() - t0:.0f} s",
           file=sys.stderr)
     return 0
 

@@ -16,7 +16,7 @@ def test_first_seed_selects_held_out_worlds():
     kw = dict(step_s=0.5, max_duration_s=20.0, log=lambda m: None)
     held = G.run_families(["jena-tram"], 2, first_seed=8, **kw)[0]
     first = G.run_families(["jena-tram"], 2, **kw)[0]
-    runs = [G.run_one(("jena-tram", seed, 0.5, 20.0, ())) for seed in (8, 9)]
+    runs = [G.run_one(("jena-tram", seed, 0.5, 20.0, (), False)) for seed in (8, 9)]
     pooled = np.concatenate([r["sfa"] for r in runs])
     assert held["seeds"] == 2
     assert held["sfa_max"] == pooled.max()
@@ -30,8 +30,8 @@ def test_first_seed_selects_held_out_worlds():
 def test_the_bound_uses_the_worlds_gnss_error():
     """The bound of a run is computed from the seed's drawn GNSS error: a larger drawn error, a larger
     bound (jena seed 0 draws sigma_g 1.43 m, tau 118 s; seed 16 draws 0.58 m, 5.8 s)."""
-    big = G.run_one(("jena-tram", 0, 0.5, 120.0, ()))["bound-sigma"]
-    small = G.run_one(("jena-tram", 16, 0.5, 120.0, ()))["bound-sigma"]
+    big = G.run_one(("jena-tram", 0, 0.5, 120.0, (), False))["bound-sigma"]
+    small = G.run_one(("jena-tram", 16, 0.5, 120.0, (), False))["bound-sigma"]
     assert expected_p95(small) < 0.8 * expected_p95(big)
 
 
@@ -71,3 +71,23 @@ def test_coverage_interval_resamples_whole_seeds():
            "sfa-gyro_coverage": pooled, "plain-ekf_p95": 1.1, "odo-dr_p95": 9.0}
     line = G.markdown_table([row]).splitlines()[-1]
     assert f"{100 * pooled:.1f} % ({100 * lo:.1f}-{100 * hi:.1f})" in line
+
+
+def test_known_gnss_tells_sfa_the_world_s_gnss_model_and_only_sfa():
+    """--known-gnss: SFA's configuration carries the seed's drawn GNSS error model with the adaptive
+    model off; the baselines and the bound are those of the plain run, SFA's errors are not."""
+    sc, _run, _meas, cfg = G.family_world("jena-tram", 0, 60.0)
+    told = G.known_gnss_config(cfg, sc)
+    drawn = dict(sc.gps.actual)
+    assert told.gps_gm_sigma_m == drawn["gm_sigma_m"] != cfg.gps_gm_sigma_m
+    assert told.gps_gm_tau_s == drawn["gm_tau_s"]
+    assert told.gps_white_sigma_m == drawn["white_sigma_m"]
+    assert told.gps_nominal_sigma_h_m == drawn["reported_sigma_h_m"]
+    assert told.gps_adaptive_window_s == 0.0 < cfg.gps_adaptive_window_s
+    plain = G.run_one(("jena-tram", 0, 0.5, 60.0, (), False))
+    known = G.run_one(("jena-tram", 0, 0.5, 60.0, (), True))
+    for key in ("plain-ekf", "odo-dr", "bound-sigma"):
+        assert np.array_equal(plain[key], known[key])
+    assert not np.array_equal(plain["sfa"], known["sfa"])
+    row = G.run_families(["jena-tram"], 1, max_duration_s=20.0, log=lambda m: None, known_gnss=True)[0]
+    assert G.markdown_table([row]).splitlines()[-1].startswith("| jena-tram (GNSS model known) |")

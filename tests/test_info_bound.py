@@ -8,7 +8,7 @@ import math
 import numpy as np
 import pytest
 
-from tools.info_bound import GnssErrorModel, along_track_sigma, expected_p95
+from tools.info_bound import GnssErrorModel, OdometerNoise, along_track_sigma, expected_p95
 
 
 def _world(step_s=0.5, duration_s=150.0):
@@ -21,11 +21,13 @@ def _world(step_s=0.5, duration_s=150.0):
     return t, speed, tangent, fixes
 
 
-def _draw(rng, t, speed, tangent, fixes, model, k_sigma):
-    """The relaxed world, drawn independently of the module: ds(t) = k D(t), exact GM per axis."""
+def _draw(rng, t, speed, tangent, fixes, model, k_sigma, odo_psd=0.0):
+    """The relaxed world, drawn independently of the module: ds(t) = k D(t) plus (``odo_psd``, one
+    value per sample) the odometer's integrated white noise, exact GM per axis."""
     distance = np.concatenate([[0.0], np.cumsum(speed[:-1] * np.diff(t))])  # held speed per segment
     k = rng.normal(0.0, k_sigma)
-    ds = k * distance
+    walk = rng.normal(0.0, 1.0, t.size - 1) * np.sqrt(np.broadcast_to(odo_psd, t.shape)[:-1] * np.diff(t))
+    ds = k * distance + np.concatenate([[0.0], np.cumsum(walk)])
     g = rng.normal(0.0, model.gm_sigma_m, 2)
     z = np.empty((fixes.size, 2))
     t_prev = 0.0
@@ -80,3 +82,31 @@ def test_expected_p95():
     sig = np.repeat([0.2, 1.0, 3.0], 20000)
     draws = np.abs(rng.normal(0.0, sig))
     assert expected_p95(sig) == pytest.approx(float(np.percentile(draws, 95)), rel=0.02)
+
+
+def test_the_odometer_s_white_noise_is_the_error_the_model_makes():
+    """With the odometer's white noise (here a poor one: 5 % of speed at 20 Hz, so that it matters beside
+    the scale error) the drawn world's position also random-walks; the covariance with that noise is
+    still the error the filter makes (without it, NEES 1.25), and is larger than the noise-free one,
+    most where the fixes are furthest apart."""
+    t, speed, tangent, fixes = _world()
+    fixes = fixes[(fixes < 60.0) | (fixes > 100.0)]  # a 40 s outage
+    noise = OdometerNoise(0.05, 0.05, 0.01, 20.0)
+    psd = noise.psd_m2ps(speed)
+    assert psd[0] == pytest.approx((0.05 ** 2 + (0.05 * 9.0) ** 2 + 0.01 ** 2 / 12) / 20.0)
+    model = GnssErrorModel(1.0, 30.0, 0.5)
+    rng = np.random.default_rng(20261206)
+    errors, sigmas = [], []
+    for _ in range(400):  # bounded: 400 draws, about 4 s
+        ds, z = _draw(rng, t, speed, tangent, fixes, model, 0.005, psd)
+        sig, ds_hat = along_track_sigma(t, speed, tangent, fixes, model, 0.005, fix_z_en=z, odo_psd_m2ps=psd)
+        errors.append(ds_hat - ds)
+        sigmas.append(sig)
+    e, s = np.concatenate(errors), np.concatenate(sigmas)
+    ok = s > 0
+    nees = float(np.mean((e[ok] / s[ok]) ** 2))
+    assert 0.85 < nees < 1.15, nees
+    quiet = along_track_sigma(t, speed, tangent, fixes, model, 0.005)
+    assert np.all(sigmas[-1] >= quiet - 1e-12)
+    gap = (t > 60.0) & (t < 100.0)
+    assert np.max(sigmas[-1][gap] - quiet[gap]) > np.max((sigmas[-1] - quiet)[t < 40.0])
