@@ -270,6 +270,31 @@ def spawn_reversals(order, ns, X, PP, AUX, CNT, MEM, IDX, cfg):
     return total > nh
 
 
+@njit(cache=True, _nrt=False, error_model="numpy")
+def status(order, n, X, PP, AUX, IDX, cfg, r, t):
+    """(status, reason bits, sigma_s) the output carries for the reported slot r at time t: its own
+    (``K.status_of``), the sigma widened while other hypotheses on its line are alive so that the
+    interval s_r +- z sigma_s also spans each one's interval s_h +- z sigma_h (half-width
+    max(z sigma_r, |s_h - s_r| + z sigma_h)). A hypothesis not pruned is not ruled out: while two
+    senses of travel are alive after a departure they part at twice the speed, and one GNSS fix can make
+    the wrong one reported for the second before the next fix prunes it. Hypotheses on other lines
+    have other arc lengths (and the output names r's line): they are not spanned."""
+    st, bits, sig = K.status_of(X[r], PP[r], AUX[r], cfg, t)
+    z = cfg[L.K_Z_INTERVAL]
+    wide = sig
+    for q in range(n):
+        h = order[q]
+        if h == r or IDX[I_LINE, h] != IDX[I_LINE, r] or AUX[h, L.A_INIT] == 0.0:
+            continue
+        _, _, sh = K.status_of(X[h], PP[h], AUX[h], cfg, t)
+        w = abs(X[h, L.S] - X[r, L.S]) / z + sh  # half-width |s_h - s_r| + z sigma_h, over z
+        if not w <= wide:  # (a NaN spread makes the interval NaN, as a NaN sigma would)
+            wide = w
+    if wide != sig:
+        st, bits = K.classify(bits, wide, cfg)
+    return st, bits, wide
+
+
 @njit(cache=True, _nrt=False)
 def put_row(e_f, e_i, ost, i, epoch, s, arrival, speed, sig, status, bits, line_id, seq0, z):
     """One sent output, for measurement i, into the estimate columns at row ost[O_ROW]."""
@@ -313,7 +338,7 @@ def emit(i, X, PP, AUX, IDX, order, ns, cfg, LID, fresh_min, last, m_time, e_f, 
         return False
     last[0] = epoch
     last[1] = s
-    st, bits, sig = K.status_of(X[r], PP[r], AUX[r], cfg, epoch)  # what the output carries
+    st, bits, sig = status(order, ns[0], X, PP, AUX, IDX, cfg, r, epoch)  # what the output carries
     put_row(e_f, e_i, ost, i, epoch, s, m_time[i], float(int(AUX[r, L.A_DIR])) * X[r, L.V], sig, st, bits,
             LID[IDX[I_LINE, r]], seq0, cfg[L.K_Z_INTERVAL])
     return True
@@ -690,6 +715,15 @@ class HypothesisBank:
     def direction_ambiguous(self) -> bool:
         """The reported hypothesis's reversal is kept too."""
         return bool(twin(self.order, self.ns[0], self.X, self.AUX, self.IDX, self.reported))
+
+    def status(self, cfg: np.ndarray, t: float, X=None, PP=None, AUX=None) -> tuple[int, int, float]:
+        """:func:`status` of the reported hypothesis at t (on the bank's arrays, or copies of them
+        given as X, PP, AUX)."""
+        X = self.X if X is None else X
+        PP = self.PP if PP is None else PP
+        AUX = self.AUX if AUX is None else AUX
+        st, bits, sig = status(self.order, self.ns[0], X, PP, AUX, self.IDX, cfg, self.reported, t)
+        return int(st), int(bits), float(sig)
 
     def args(self, cfg: np.ndarray) -> tuple:
         """:func:`run_segment`'s arguments from X to work_f (built once per change of an array)."""

@@ -199,15 +199,20 @@ class TrackFilter:
         r = b.reported
         line = b.line(r)
         d = b.direction(r)
-        x, P, aux = b.X[r], b.PP[r], b.AUX[r]
-        t = float(aux[L.A_T_STATE])
+        X, PP, AUX = b.X, b.PP, b.AUX
+        t = float(AUX[r, L.A_T_STATE])
         t_eval = t if at_s is None or not math.isfinite(at_s) else max(t, float(at_s))
         if propagate and t_eval > t:
-            x, P, aux, cnt = x.copy(), P.copy(), aux.copy(), b.CNT[r].copy()
-            K.predict_to(x, P, aux, cnt, self._cfg, line.s_m, line.grade, t_eval)
-            K.sync_block(x, P, aux, self._cfg, cnt)
+            # every hypothesis the interval spans (those on the reported line) predicted, on copies
+            X, PP, AUX = X.copy(), PP.copy(), AUX.copy()
+            for h in b.slots():
+                if b.line(h) is line:
+                    cnt = b.CNT[h].copy()
+                    K.predict_to(X[h], PP[h], AUX[h], cnt, self._cfg, line.s_m, line.grade, t_eval)
+                    K.sync_block(X[h], PP[h], AUX[h], self._cfg, cnt)
             t = t_eval
-        code, bits, sigma = K.status_of(x, P, aux, self._cfg, t_eval)
+        x, P, aux = X[r], PP[r], AUX[r]
+        code, bits, sigma = b.status(self._cfg, t_eval, X, PP, AUX)
         s = float(x[L.S])
         lat, lon = self._latlon(line, s)
         pv = K.pending_var_v(P, aux)

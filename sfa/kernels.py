@@ -886,15 +886,24 @@ def status_of(x, P, aux, cfg, t):
     if (bits & FAULT_REASONS) != 0:
         # a sensor faulty or missing: widen to the fault_confidence interval (config: fault_confidence)
         sigma *= cfg[K_FAULT_SIGMA_SCALE]
+    code, bits = classify(bits, sigma, cfg)
+    return code, bits, sigma
+
+
+@njit(cache=True, _nrt=False, error_model="numpy")
+def classify(bits, sigma, cfg):
+    """(status, reason bits) from the reason bits and the reported sigma_s: the sigma bits set afresh
+    from sigma (``degraded_sigma_m``, ``lost_sigma_m``), then LOST, DEGRADED or NOMINAL."""
+    bits &= ~(R_SIGMA_LOST | R_SIGMA_HIGH)
     if sigma > cfg[K_LOST_SIGMA]:
         bits |= R_SIGMA_LOST
     elif sigma > cfg[K_DEGRADED_SIGMA]:
         bits |= R_SIGMA_HIGH
     if (bits & (R_SIGMA_LOST | R_NO_MOTION_SENSOR)) != 0:
-        return 3, bits, sigma
+        return 3, bits
     if (bits & ~R_STANDSTILL) != 0:
-        return 2, bits, sigma
-    return 1, bits, sigma
+        return 2, bits
+    return 1, bits
 
 
 # ============================================================== initialisation (GROUND TRUTH)

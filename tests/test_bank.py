@@ -32,8 +32,8 @@ def db(tmp_path_factory):
 
 
 def _output_rule(estimates):
-    """(epoch, s) of the estimates the listener sends: finite, not older than the last sent, not the
-    same epoch and arc length (no clock here: nothing is stale)."""
+    """(epoch, s, sigma_s) of the estimates the listener sends: finite, not older than the last sent, not
+    the same epoch and arc length (no clock here: nothing is stale)."""
     sent = []
     last = (-math.inf, math.nan)
     for e in estimates:
@@ -41,7 +41,7 @@ def _output_rule(estimates):
             continue
         if e.epoch_s >= last[0] and not (e.epoch_s == last[0] and e.arc_length_m == last[1]):
             last = (e.epoch_s, e.arc_length_m)
-            sent.append(last)
+            sent.append((*last, e.sigma_s_m))
     return np.array(sent)
 
 
@@ -89,6 +89,7 @@ def _both_paths(db, cfg, meas, monkeypatch):
     assert rows == sent.shape[0] > 1000
     np.testing.assert_array_equal(out.e_f[0, :rows], sent[:, 0])
     np.testing.assert_array_equal(out.e_f[1, :rows], sent[:, 1])
+    np.testing.assert_array_equal(out.e_f[4, :rows], sent[:, 2])  # the interval, hypotheses spanned
     for (xa, pa, aa, la), (xb, pb, ab, lb) in zip(one.hypotheses(), two.hypotheses(), strict=True):
         assert la == lb
         np.testing.assert_array_equal(xa, xb)
@@ -145,6 +146,72 @@ def test_a_nis_that_is_not_a_number_scores_as_the_cap():
     score(bank.order, 2, bank.AUX, L.A_LAST_NIS_ODO, 50.0, 0.1)  # a tenth of an independent fix
     assert bank.AUX[0, L.A_LOGLIK] == -1.0 - 25.0 - 2.5
     assert bank.AUX[1, L.A_LOGLIK] == -1.0 - 1.5 - 0.15
+
+
+def _slot(bank, slot, line, s, sigma, t):
+    """Slot ``slot`` initialised on ``line`` at arc length s with 1-sigma ``sigma``, every sensor fresh
+    at t."""
+    bank.place(slot, line, frozenset())
+    bank.X[slot, L.S] = s
+    bank.PP[slot, L.S, L.S] = sigma * sigma
+    bank.AUX[slot, L.A_INIT] = 1.0
+    for a in (L.A_T_STATE, L.A_T_IMU, L.A_T_ODO, L.A_T_GPS):
+        bank.AUX[slot, a] = t
+    bank.AUX[slot, L.A_IMU_FAULT_T] = -math.inf
+
+
+def test_the_interval_spans_every_live_hypothesis_on_the_reported_line():
+    """The reported interval s_r +- z sigma also holds each other hypothesis on its line with its own
+    interval (half-width max(z sigma_r, |s_h - s_r| + z sigma_h)); one on another line is not spanned,
+    and the status follows the widened sigma."""
+    cfg = filter_config_for().to_array()
+    z = cfg[L.K_Z_INTERVAL]
+    a = TrackArrays(1, 1000.0, np.array([0.0, 1000.0]), np.array([0.0, 1000.0]), np.zeros(2), np.zeros(2),
+                    np.zeros(2))
+    b = TrackArrays(2, 1000.0, np.array([0.0, 1000.0]), np.zeros(2), np.array([0.0, 1000.0]), np.zeros(2),
+                    np.zeros(2))
+    bank = HypothesisBank(4)
+    t = 1000.0
+    _slot(bank, 0, a, 100.0, 0.1, t)
+    bank.set_live([0], 0)
+    assert bank.status(cfg, t) == (1, 0, pytest.approx(0.1, rel=1e-12))  # alone: its own
+    _slot(bank, 1, a, 106.0, 0.2, t)  # the mirrored sense of travel, 6 m on
+    _slot(bank, 2, b, 900.0, 0.1, t)  # another line: other arc lengths
+    bank.set_live([0, 1, 2], 0)
+    assert bank.status(cfg, t) == (1, 0, pytest.approx(6.0 / z + 0.2, rel=1e-12))  # 3.3 m: nominal
+    bank.X[1, L.S] = 88.0  # 12 m behind: sigma 12 / z + 0.2 = 6.3 m > degraded_sigma_m (5 m)
+    assert bank.status(cfg, t) == (2, L.R_SIGMA_HIGH, pytest.approx(12.0 / z + 0.2, rel=1e-12))
+    bank.set_live([0, 1, 2], 1)  # the other one reported: the same spread, around it
+    assert bank.status(cfg, t)[2] == pytest.approx(12.0 / z + 0.1, rel=1e-12)
+    bank.set_live([0, 2], 0)  # pruned: the interval is the reported one's own again
+    assert bank.status(cfg, t) == (1, 0, pytest.approx(0.1, rel=1e-12))
+
+
+def test_a_mirrored_sense_of_travel_reported_at_a_departure_stays_inside_the_interval():
+    """Urban-GNSS seed 185 (an as-built path, drawn sensor errors, the datasheet presets): at the
+    departure both senses of travel are alive, the fix at 13.0 s makes the mirrored one reported (6.8 m
+    off) and the fix at 14.0 s prunes it. Its own sigma was 0.08 m (the truth 43 half-widths out); the
+    interval spans the live hypotheses, so the truth stays inside it."""
+    from interface_modules.tracks import database_path
+    from tools.bench_generalisation import family_world
+
+    sc, run, meas, cfg = family_world("urban-gnss", 185, 300.0)
+    te, ts = run.truth["epoch"], run.truth["arc_length"]
+    z = cfg.interval_z()
+    worst, seen = 0.0, 0
+    with TrackDatabase.open(database_path(sc)) as track:
+        f = TrackFilter(track, cfg)
+        for m in meas:  # bounded: the world's measurements up to 16 s
+            if m.t_s - te[0] > 16.0:
+                break
+            f.process(m)
+            e = f.estimate()
+            if 12.0 <= e.epoch_s - te[0] and math.isfinite(e.arc_length_m):
+                err = abs(e.arc_length_m - float(np.interp(e.epoch_s, te, ts)))
+                worst = max(worst, err / (z * e.sigma_s_m))
+                seen += err > 3.0
+    assert seen > 0  # the mirrored one was reported (else this world no longer tests the case)
+    assert worst <= 1.0, worst
 
 
 def test_the_bank_grows_when_spawning_needs_room():
