@@ -271,27 +271,83 @@ def spawn_reversals(order, ns, X, PP, AUX, CNT, MEM, IDX, cfg):
 
 
 @njit(cache=True, _nrt=False, error_model="numpy")
-def status(order, n, X, PP, AUX, IDX, cfg, r, t):
-    """(status, reason bits, sigma_s) the output carries for the reported slot r at time t: its own
-    (``K.status_of``), the sigma widened while other hypotheses on its line are alive so that the
-    interval s_r +- z sigma_s also spans each one's interval s_h +- z sigma_h (half-width
-    max(z sigma_r, |s_h - s_r| + z sigma_h)). A hypothesis not pruned is not ruled out: while two
-    senses of travel are alive after a departure they part at twice the speed, and one GNSS fix can make
-    the wrong one reported for the second before the next fix prunes it. Hypotheses on other lines
-    have other arc lengths (and the output names r's line): they are not spanned."""
-    st, bits, sig = K.status_of(X[r], PP[r], AUX[r], cfg, t)
-    z = cfg[L.K_Z_INTERVAL]
-    wide = sig
+def _mass_inside(lo, hi, s, sig):
+    """Probability that N(s, sig^2) lies in [lo, hi] (a point mass for sig = 0)."""
+    if sig > 0.0:
+        k = 1.0 / (sig * math.sqrt(2.0))
+        return 0.5 * (math.erf((hi - s) * k) - math.erf((lo - s) * k))
+    return 1.0 if lo <= s <= hi else 0.0
+
+
+@njit(cache=True, _nrt=False, error_model="numpy")
+def _mixture_mass(order, n, X, AUX, IDX, r, ll0, wsum, sg, lo, hi):
+    """Mass of the reported line's hypotheses (weights exp(ll - ll0) / wsum, spreads ``sg``) in [lo, hi]."""
+    m = 0.0
     for q in range(n):
         h = order[q]
-        if h == r or IDX[I_LINE, h] != IDX[I_LINE, r] or AUX[h, L.A_INIT] == 0.0:
+        if IDX[I_LINE, h] == IDX[I_LINE, r] and AUX[h, L.A_INIT] != 0.0:
+            m += math.exp(AUX[h, L.A_LOGLIK] - ll0) / wsum * _mass_inside(lo, hi, X[h, L.S], sg[q])
+    return m
+
+
+@njit(cache=True, _nrt=False, error_model="numpy")
+def status(order, n, X, PP, AUX, IDX, cfg, r, t, sg):
+    """(status, reason bits, sigma_s) the output carries for the reported slot r at time t: its own
+    (``K.status_of``), widened while other hypotheses on its line are alive so that the interval
+    s_r +- z sigma_s holds the confidence (erf(z / sqrt 2), 95 %) of their mixture: each hypothesis h a
+    normal N(s_h, sigma_h^2) (its own reported sigma) weighted by its share exp(score) of the line's
+    hypotheses (the score is the log-likelihood, with the reversal prior: ``score``, ``prune``).
+
+    Two senses of travel alive at a departure part at twice the speed: while both hold a share the
+    interval spans both, whichever is reported (the report only changes at a lead of
+    ``switch_log_ratio``, so a reported hypothesis can hold as little as 1 %). A copy at its prior's
+    1 % (a reversal spawned at a stop, nothing to tell it apart in a GNSS outage) widens the interval
+    only by the 1 % it takes from the reported one's mass. Hypotheses on other lines have another
+    line's arc lengths (and the output names r's line): the mixture is the reported line's.
+    ``sg`` (float64, the bank's capacity): scratch for the hypotheses' sigmas."""
+    st, bits, sig = K.status_of(X[r], PP[r], AUX[r], cfg, t)
+    z = cfg[L.K_Z_INTERVAL]
+    ll0 = AUX[r, L.A_LOGLIK]
+    others = 0
+    for q in range(n):
+        h = order[q]
+        if IDX[I_LINE, h] != IDX[I_LINE, r] or AUX[h, L.A_INIT] == 0.0:
             continue
-        _, _, sh = K.status_of(X[h], PP[h], AUX[h], cfg, t)
-        w = abs(X[h, L.S] - X[r, L.S]) / z + sh  # half-width |s_h - s_r| + z sigma_h, over z
-        if not w <= wide:  # (a NaN spread makes the interval NaN, as a NaN sigma would)
-            wide = w
-    if wide != sig:
-        st, bits = K.classify(bits, wide, cfg)
+        if h != r:
+            others += 1
+        if AUX[h, L.A_LOGLIK] > ll0:
+            ll0 = AUX[h, L.A_LOGLIK]
+    if others == 0 or not (math.isfinite(sig) and math.isfinite(ll0)):
+        return st, bits, sig
+    wsum = 0.0
+    far = z * sig
+    for q in range(n):
+        h = order[q]
+        if IDX[I_LINE, h] != IDX[I_LINE, r] or AUX[h, L.A_INIT] == 0.0:
+            continue
+        _, _, sg[q] = K.status_of(X[h], PP[h], AUX[h], cfg, t)
+        wsum += math.exp(AUX[h, L.A_LOGLIK] - ll0)
+        reach = abs(X[h, L.S] - X[r, L.S]) + 10.0 * sg[q]  # beyond: mass 1 - 1e-23
+        if not reach <= far:
+            far = reach
+    if not math.isfinite(far):
+        return st, bits, math.inf if far > 0.0 else far
+    conf = math.erf(z / math.sqrt(2.0))
+    s_r = X[r, L.S]
+    lo = z * sig
+    if _mixture_mass(order, n, X, AUX, IDX, r, ll0, wsum, sg, s_r - lo, s_r + lo) >= conf:
+        return st, bits, sig
+    hi = far
+    for _ in range(64):  # bisection on the half-width: the mass grows with it
+        mid = 0.5 * (lo + hi)
+        if _mixture_mass(order, n, X, AUX, IDX, r, ll0, wsum, sg, s_r - mid, s_r + mid) >= conf:
+            hi = mid
+        else:
+            lo = mid
+        if hi - lo <= 1e-9 * hi:
+            break
+    wide = hi / z  # the smallest half-width found that holds the confidence, over z
+    st, bits = K.classify(bits, wide, cfg)
     return st, bits, wide
 
 
@@ -320,7 +376,7 @@ def put_row(e_f, e_i, ost, i, epoch, s, arrival, speed, sig, status, bits, line_
 
 
 @njit(cache=True, _nrt=False, error_model="numpy")
-def emit(i, X, PP, AUX, IDX, order, ns, cfg, LID, fresh_min, last, m_time, e_f, e_i, ost, seq0):
+def emit(i, X, PP, AUX, IDX, order, ns, cfg, LID, fresh_min, last, m_time, e_f, e_i, ost, seq0, work_f):
     """The listener's output rule on the estimate after measurement i (``listener.pipeline``'s
     ``_maybe_output``): a finite epoch and arc length, not stale against the clock (epoch below
     ``fresh_min[i]``: counted in ost[O_STALE]), not older than the last output ``last`` (epoch, s) and
@@ -338,7 +394,7 @@ def emit(i, X, PP, AUX, IDX, order, ns, cfg, LID, fresh_min, last, m_time, e_f, 
         return False
     last[0] = epoch
     last[1] = s
-    st, bits, sig = status(order, ns[0], X, PP, AUX, IDX, cfg, r, epoch)  # what the output carries
+    st, bits, sig = status(order, ns[0], X, PP, AUX, IDX, cfg, r, epoch, work_f)  # what the output carries
     put_row(e_f, e_i, ost, i, epoch, s, m_time[i], float(int(AUX[r, L.A_DIR])) * X[r, L.V], sig, st, bits,
             LID[IDX[I_LINE, r]], seq0, cfg[L.K_Z_INTERVAL])
     return True
@@ -489,7 +545,8 @@ def run_segment(kind, t, vals, i0, stop_jumps, X, PP, AUX, CNT, MEM, IDX, order,
             if AUX[order[ns[1]], L.A_RELOC] != 0.0:
                 return i, STOP_AFTER
         if emitting:
-            emit(i, X, PP, AUX, IDX, order, ns, cfg, LID, fresh_min, last, m_time, e_f, e_i, ost, seq0)
+            emit(i, X, PP, AUX, IDX, order, ns, cfg, LID, fresh_min, last, m_time, e_f, e_i, ost, seq0,
+                 work_f)
     return n, DONE
 
 
@@ -722,7 +779,8 @@ class HypothesisBank:
         X = self.X if X is None else X
         PP = self.PP if PP is None else PP
         AUX = self.AUX if AUX is None else AUX
-        st, bits, sig = status(self.order, self.ns[0], X, PP, AUX, self.IDX, cfg, self.reported, t)
+        st, bits, sig = status(self.order, self.ns[0], X, PP, AUX, self.IDX, cfg, self.reported, t,
+                               self.work_f)
         return int(st), int(bits), float(sig)
 
     def args(self, cfg: np.ndarray) -> tuple:
@@ -751,4 +809,5 @@ class HypothesisBank:
     def emit(self, i: int, cfg: np.ndarray, out: RunOutput) -> bool:
         """The output rule (:func:`emit`) after measurement i."""
         return bool(emit(i, self.X, self.PP, self.AUX, self.IDX, self.order, self.ns, cfg, self.lines.ID,
-                         out.fresh_min, out.last, out.m_time, out.e_f, out.e_i, out.ost, out.seq0))
+                         out.fresh_min, out.last, out.m_time, out.e_f, out.e_i, out.ost, out.seq0,
+                         self.work_f))

@@ -61,8 +61,8 @@ ENTRY_POINTS: dict[tuple[str, str], str] = {
     ("sfa.bank", "run_segment"): "I1 A1 A2 i8 b1 A2 A3 A2 I2 A2 I2 I1 I1 A1 A2 I1 A1 I1 A1 I1 A1 "
                                  "A2 A3 A2 I2 A2 A2 A1 I1 A1 A1 A1 A1 A2 I2 I1 i8",
     ("sfa.bank", "prune"): "I1 I1 A2 A2 I2 A2 I1 A1 A1 I1 A1",
-    ("sfa.bank", "emit"): "i8 A2 A3 A2 I2 I1 I1 A1 I1 A1 A1 A1 A2 I2 I1 i8",
-    ("sfa.bank", "status"): "I1 i8 A2 A3 A2 I2 A1 i8 f8",
+    ("sfa.bank", "emit"): "i8 A2 A3 A2 I2 I1 I1 A1 I1 A1 A1 A1 A2 I2 I1 i8 A1",
+    ("sfa.bank", "status"): "I1 i8 A2 A3 A2 I2 A1 i8 f8 A1",
     ("sfa.bank", "same_track"): "i8 i8 A2 A2 I2 A2 I1 f8",
     ("sfa.bank", "twin"): "I1 i8 A2 A2 I2 i8",
     ("sfa.bank", "empty_gyro_windows"): "I1 i8 A2",
