@@ -330,8 +330,9 @@ def status(order, n, X, PP, AUX, IDX, cfg, r, t, sg):
         reach = abs(X[h, L.S] - X[r, L.S]) + 10.0 * sg[q]  # beyond: mass 1 - 1e-23
         if not reach <= far:
             far = reach
-    if not math.isfinite(far):
-        return st, bits, math.inf if far > 0.0 else far
+    if not math.isfinite(far):  # a sigma gone infinite or NaN: so is the interval
+        st, bits = K.classify(bits, far, cfg)
+        return st, bits, far
     conf = math.erf(z / math.sqrt(2.0))
     s_r = X[r, L.S]
     lo = z * sig

@@ -182,6 +182,8 @@ def test_declared_fault_widens_the_reported_interval_only(db, cfg):
     n_fault = 0
     for w, p in zip(wide, plain, strict=True):
         assert w.arc_length_m == p.arc_length_m and w.reasons == p.reasons
+        if w.hypotheses > 1:  # the mixture of several hypotheses' intervals: not a scale of one
+            continue
         if fault & set(w.reasons):
             n_fault += 1
             assert w.sigma_s_m == pytest.approx(scale * p.sigma_s_m, rel=1e-12)
@@ -247,8 +249,15 @@ def test_deterministic_and_batch_identical(db, cfg):
     assert c.tobytes() == c2.tobytes()
     # the batch loop runs the same kernels, compiled inside another function: LLVM may round a few
     # operations differently (1e-17 relative), so across the two paths the agreement is numerical
-    np.testing.assert_allclose(c, a, rtol=1e-9, atol=1e-9)
-    assert [e.status for e in est_a] == [FilterStatus(int(s)) for s in res.status]
+    # the batch loop keeps one hypothesis: where the filter keeps others on the line (the reversal at a
+    # stop) its interval holds their mixture, never narrower than the one hypothesis's
+    one = np.array([e.hypotheses == 1 for e in est_a])
+    assert 0 < one.sum() < one.size
+    np.testing.assert_allclose(c[:, :3], a[:, :3], rtol=1e-9, atol=1e-9)
+    np.testing.assert_allclose(c[one, 3], a[one, 3], rtol=1e-9, atol=1e-9)
+    assert np.all(a[~one, 3] >= c[~one, 3] * (1.0 - 1e-9))
+    status = np.array([FilterStatus(int(s)) for s in res.status])
+    assert [e.status for e, o in zip(est_a, one, strict=True) if o] == list(status[one])
     assert fa.counters() == fb.counters()
 
 
