@@ -280,13 +280,20 @@ def _mass_inside(lo, hi, s, sig):
 
 
 @njit(cache=True, _nrt=False, error_model="numpy")
-def _mixture_mass(order, n, X, AUX, IDX, r, ll0, wsum, sg, lo, hi):
-    """Mass of the reported line's hypotheses (weights exp(ll - ll0) / wsum, spreads ``sg``) in [lo, hi]."""
+def _on_line(h, r, AUX, IDX):
+    """Whether slot h is a live hypothesis on the reported slot r's line (r itself included)."""
+    return IDX[I_LINE, h] == IDX[I_LINE, r] and AUX[h, L.A_INIT] != 0.0
+
+
+@njit(cache=True, _nrt=False, error_model="numpy")
+def _mixture_mass(order, n, X, sg, lo, hi):
+    """Mass in [lo, hi] of the mixture of hypotheses ``order[:n]`` with spreads ``sg[:n]`` and weights
+    ``sg[n:2n]`` (zero: not in the mixture)."""
     m = 0.0
     for q in range(n):
-        h = order[q]
-        if IDX[I_LINE, h] == IDX[I_LINE, r] and AUX[h, L.A_INIT] != 0.0:
-            m += math.exp(AUX[h, L.A_LOGLIK] - ll0) / wsum * _mass_inside(lo, hi, X[h, L.S], sg[q])
+        w = sg[n + q]
+        if w != 0.0:
+            m += w * _mass_inside(lo, hi, X[order[q], L.S], sg[q])
     return m
 
 
@@ -304,15 +311,18 @@ def status(order, n, X, PP, AUX, IDX, cfg, r, t, sg):
     1 % (a reversal spawned at a stop, nothing to tell it apart in a GNSS outage) widens the interval
     only by the 1 % it takes from the reported one's mass. Hypotheses on other lines have another
     line's arc lengths (and the output names r's line): the mixture is the reported line's.
-    ``sg`` (float64, the bank's capacity): scratch for the hypotheses' sigmas."""
+    ``sg`` (float64, twice the bank's capacity): scratch for the hypotheses' sigmas ``sg[:n]`` and
+    mixture weights ``sg[n:2n]``."""
     st, bits, sig = K.status_of(X[r], PP[r], AUX[r], cfg, t)
     z = cfg[L.K_Z_INTERVAL]
     ll0 = AUX[r, L.A_LOGLIK]
     others = 0
     for q in range(n):
         h = order[q]
-        if IDX[I_LINE, h] != IDX[I_LINE, r] or AUX[h, L.A_INIT] == 0.0:
+        sg[n + q] = 0.0
+        if not _on_line(h, r, AUX, IDX):
             continue
+        sg[n + q] = 1.0  # in the mixture; its weight below
         if h != r:
             others += 1
         if AUX[h, L.A_LOGLIK] > ll0:
@@ -322,26 +332,29 @@ def status(order, n, X, PP, AUX, IDX, cfg, r, t, sg):
     wsum = 0.0
     far = z * sig
     for q in range(n):
-        h = order[q]
-        if IDX[I_LINE, h] != IDX[I_LINE, r] or AUX[h, L.A_INIT] == 0.0:
+        if sg[n + q] == 0.0:
             continue
+        h = order[q]
         _, _, sg[q] = K.status_of(X[h], PP[h], AUX[h], cfg, t)
-        wsum += math.exp(AUX[h, L.A_LOGLIK] - ll0)
+        sg[n + q] = math.exp(AUX[h, L.A_LOGLIK] - ll0)
+        wsum += sg[n + q]
         reach = abs(X[h, L.S] - X[r, L.S]) + 10.0 * sg[q]  # beyond: mass 1 - 1e-23
         if not reach <= far:
             far = reach
     if not math.isfinite(far):  # a sigma gone infinite or NaN: so is the interval
         st, bits = K.classify(bits, far, cfg)
         return st, bits, far
+    for q in range(n):
+        sg[n + q] /= wsum  # the shares, summing to 1
     conf = math.erf(z / math.sqrt(2.0))
     s_r = X[r, L.S]
     lo = z * sig
-    if _mixture_mass(order, n, X, AUX, IDX, r, ll0, wsum, sg, s_r - lo, s_r + lo) >= conf:
+    if _mixture_mass(order, n, X, sg, s_r - lo, s_r + lo) >= conf:
         return st, bits, sig
     hi = far
     for _ in range(64):  # bisection on the half-width: the mass grows with it
         mid = 0.5 * (lo + hi)
-        if _mixture_mass(order, n, X, AUX, IDX, r, ll0, wsum, sg, s_r - mid, s_r + mid) >= conf:
+        if _mixture_mass(order, n, X, sg, s_r - mid, s_r + mid) >= conf:
             hi = mid
         else:
             lo = mid
@@ -409,11 +422,11 @@ def run_segment(kind, t, vals, i0, stop_jumps, X, PP, AUX, CNT, MEM, IDX, order,
     hypotheses ``order[:ns[0]]``, reported ``order[ns[1]]``, as ``TrackFilter.process`` defines it.
 
     Per measurement i: its outcome ``u_out[i]`` and NIS ``u_nis[i]`` (NaN for IMU), the reported
-    hypothesis's; then, when ``e_f`` has columns, the output rule (:func:`emit`). ``work_i`` (int64) and
-    ``work_f`` (float64) are scratch of the bank's capacity (the loop is compiled without numba's
-    allocator, ``_nrt=False``: it allocates nothing). ``SX .. SS`` are the solution-separation
-    sub-filters (``sfa.separation``), stepped after the hypotheses; while they exclude GNSS no
-    hypothesis is given a fix.
+    hypothesis's; then, when ``e_f`` has columns, the output rule (:func:`emit`). ``work_i`` (int64, the
+    bank's capacity) and ``work_f`` (float64, twice it: :func:`status`) are scratch (the loop is compiled
+    without numba's allocator, ``_nrt=False``: it allocates nothing). ``SX .. SS`` are the
+    solution-separation sub-filters (``sfa.separation``), stepped after the hypotheses; while they
+    exclude GNSS no hypothesis is given a fix.
 
     Returns (i, why): DONE with i = n; STOP_BEFORE with i the first measurement not processed (a kind
     other than IMU, odometer, GNSS, or with ``stop_jumps`` one further ahead of the state than
@@ -653,7 +666,7 @@ class HypothesisBank:
             order[:n_old] = self.order
         self.IDX, self.order = idx, order
         self.work_i = np.zeros(cap, dtype=np.int64)
-        self.work_f = np.zeros(cap)
+        self.work_f = np.zeros(2 * cap)  # status: sigmas and weights
         if old is None:  # the solution-separation sub-filters (sfa.separation): a fixed number
             n = SEP.NSUB
             self.SX, self.SPP = np.zeros((n, L.NX)), np.zeros((n, L.NX, L.NX))
