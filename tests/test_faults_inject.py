@@ -33,12 +33,16 @@ def _receiver() -> tuple[socket.socket, list[tuple[float, bytes]], threading.Thr
     got: list[tuple[float, bytes]] = []
 
     def run() -> None:
-        deadline = time.monotonic() + 20.0  # bounded even if the sender never stops
+        # done 0.5 s after the last datagram; before the first, the sender may still be starting (a
+        # process on a loaded machine took longer than 0.5 s to send its first); bounded either way
+        deadline = time.monotonic() + 20.0
         while time.monotonic() < deadline:
             try:
                 data = rx.recv(4096)
             except TimeoutError:
-                return
+                if got:
+                    return
+                continue
             got.append((time.monotonic(), data))
 
     th = threading.Thread(target=run, daemon=True)
