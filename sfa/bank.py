@@ -14,7 +14,8 @@ of one measurement, and ``TrackFilter.run`` (the replay) over a run of packed me
   the one ``TrackFilter`` kept its hypothesis list in), ``order[ns[1]]`` the reported one.
 
 The rules, from docs/filter.md ("Line hypotheses"): the score is the robust log-likelihood -NIS/2
-(capped at ``loglik_nis_cap``) of gyro windows, odometer samples and GNSS fixes at least one hypothesis
+(capped at ``loglik_nis_cap``; for a GNSS fix under a learned model the Student-t's, with that model's
+degrees of freedom) of gyro windows, odometer samples and GNSS fixes at least one hypothesis
 accepted (:func:`score`); pruning drops a hypothesis whose score trails the best by more than
 ``prune_log_ratio``, one off the end of its line while others remain, duplicates (:func:`same_track`)
 and the excess over ``max_hypotheses``, and keeps the reported one unless another leads by
@@ -136,15 +137,21 @@ def same_track(g, h, X, AUX, IDX, G, LOFF, window):
 
 
 @njit(cache=True, _nrt=False, error_model="numpy")
-def score(order, nh, AUX, slot, cap, weight):
+def score(order, nh, AUX, slot, cap, weight, dof, dim):
     """The hypotheses' score update (before the prune): loglik -= weight min(NIS, cap) / 2 with the NIS
-    in ``slot``; a NIS that is not a number counts as the cap (the worst a measurement scores).
-    ``weight`` is the share of an independent measurement's evidence the measurement carries (1, or
-    for GNSS the CUSUM's rate weight, see run_segment)."""
+    in ``slot`` (the normal), or with ``dof`` > 0 the Student-t's weight (dof + dim) / 2 log(1 +
+    min(NIS, cap) / dof) for a ``dim``-dimensional measurement (GNSS under a learned model:
+    gnss_noise.score_dof); a NIS that is not a number counts as the cap (the worst a measurement
+    scores). ``weight`` is the share of an independent measurement's evidence the measurement carries
+    (1, or for GNSS the CUSUM's rate weight, see run_segment)."""
     for j in range(nh):
         h = order[j]
         nis = AUX[h, slot]
-        AUX[h, L.A_LOGLIK] -= weight * 0.5 * (nis if nis < cap else cap)
+        x = nis if nis < cap else cap
+        if dof > 0.0:
+            AUX[h, L.A_LOGLIK] -= weight * 0.5 * (dof + dim) * math.log1p(x / dof)  # -log t
+        else:
+            AUX[h, L.A_LOGLIK] -= weight * 0.5 * x  # -log normal
 
 
 @njit(cache=True, _nrt=False, error_model="numpy")
@@ -509,7 +516,7 @@ def run_segment(kind, t, vals, i0, stop_jumps, X, PP, AUX, CNT, MEM, IDX, order,
                     if AUX[h, L.A_GYRO_OK] != 0.0:
                         any_on = True
                 if all_ok and any_on:
-                    score(order, nh, AUX, L.A_LAST_NIS_GYRO, cap, 1.0)
+                    score(order, nh, AUX, L.A_LAST_NIS_GYRO, cap, 1.0, 0.0, 1.0)
                     prune(order, ns, X, AUX, IDX, G, LOFF, LLEN, cfg, work_i, work_f)
             elif accepted or explained:
                 # a measurement every hypothesis rejects is a sensor fault, not evidence; one inside some
@@ -526,7 +533,11 @@ def run_segment(kind, t, vals, i0, stop_jumps, X, PP, AUX, CNT, MEM, IDX, order,
                     wt = K.gps_evidence_weight(ti, t_gps_prev, cfg)
                 else:
                     wt = K.evidence_weight(ti, t_odo_prev, cfg[L.K_ODO_EVIDENCE_DT])
-                score(order, nh, AUX, L.A_LAST_NIS_ODO if k == 2 else L.A_LAST_NIS_GPS, cap, wt)
+                if k == 2:
+                    score(order, nh, AUX, L.A_LAST_NIS_ODO, cap, wt, 0.0, 1.0)
+                else:  # under the model every hypothesis shares (gnss_noise.share), the reported one's
+                    dof = gnss_noise.score_dof(AUX[order[rep]], cfg) if cfg[L.K_GPS_SCORE_T] != 0.0 else 0.0
+                    score(order, nh, AUX, L.A_LAST_NIS_GPS, cap, wt, dof, 2.0)
                 prune(order, ns, X, AUX, IDX, G, LOFF, LLEN, cfg, work_i, work_f)
         if k == 2 and cfg[L.K_REVERSAL] != 0.0 and AUX[order[ns[1]], L.A_STILL] != 0.0:
             if spawn_reversals(order, ns, X, PP, AUX, CNT, MEM, IDX, cfg):

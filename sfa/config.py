@@ -262,6 +262,14 @@ class FilterConfig:
     reversal_log_prior: float = slot(4.6, "K_REVERSAL_PRIOR")
     #: NIS cap in the hypothesis likelihood (robust to outliers) [NIS]
     loglik_nis_cap: float = slot(50.0, "K_GPS_MAX_LOGLIK_NIS")
+    #: score a fix against the line hypotheses by the Student-t of its 2-d NIS when the GNSS model is
+    #: learned (gps_adaptive_window_s > 0): -(dof + 2) / 2 log(1 + NIS / dof), dof the learned
+    #: variance's own (seconds of data / tau, sfa.gnss_noise.score_dof), instead of -NIS / 2. With R's
+    #: scale an estimate, the fix's likelihood is a t, not a normal: one fix of urban-gnss seed 185 at
+    #: a NIS of 12.3 (a 1.7-sigma error of the world, 3.5 of the model) moved the normal score by 6.1
+    #: and reported the wrong sense of travel, 6.8 m off (docs/filter.md, "Session 27"). A known
+    #: model (no adaptation) keeps the normal
+    gps_score_student_t: bool = slot(True, "K_GPS_SCORE_T")
     #: the line hypotheses' odometer score counts samples closer than this as the fraction dt / this of
     #: one independent sample, as cusum_min_interval_s does for fixes: a hypothesis's speed error at a
     #: departure persists for seconds, so 20 Hz samples are not 20x the evidence (urban-gnss seed 23's

@@ -166,6 +166,33 @@ def variance_inflation(tau, seconds):
     return 1.0 + math.sqrt(2.0 * tau / max(seconds, tau))
 
 
+@njit(cache=True, inline="always", _nrt=False, error_model="numpy")
+def seconds_of_data(aux):
+    """Seconds of data behind the best-observed lag (the prior's counted as its seconds) [s]."""
+    seconds = 0.0
+    for i in range(1, AD_NMOM):
+        seconds = max(seconds, aux[A_AD_W + i])
+    return seconds
+
+
+@njit(cache=True, _nrt=False, error_model="numpy")
+def score_dof(aux, cfg):
+    """Degrees of freedom of the model's correlated variance, for the Student-t a fix scores the line
+    hypotheses with (sfa.bank.score) [-]; 0 (the normal) when the model does not adapt.
+
+    A fix's NIS divides by the model's variance. Where that variance is estimated from T seconds of a
+    process correlated over tau, the estimate is distributed as a chi-square with T / tau degrees of
+    freedom (its relative variance is 2 tau / T, as in ``variance_inflation``: Bartlett), and the fix's
+    predictive density, the normal marginalised over that scale, is a t with those degrees of freedom.
+    A model declared known (``gps_adaptive_window_s = 0``: the preset is the receiver) has no such
+    uncertainty."""
+    if cfg[K_AD_WINDOW] <= 0.0:
+        return 0.0
+    tau = aux[A_GM_TAU]
+    seconds = seconds_of_data(aux)
+    return max(seconds, tau) / tau
+
+
 @njit(cache=True, _nrt=False, error_model="numpy")
 def fit(aux, cfg):
     """sigma_g, tau, sigma_w from the moments: tau by least squares over the grid, each moment weighted
@@ -198,11 +225,8 @@ def fit(aux, cfg):
     m0 = aux[A_AD_M]
     s2 = min(best_s2, m0)
     top = CEILING * aux[A_AD_SH]
-    seconds = 0.0  # seconds of data behind the best-observed lag (the prior's counted as its seconds)
-    for i in range(1, AD_NMOM):
-        seconds = max(seconds, aux[A_AD_W + i])
     # the correlated variance used: the fitted one plus one standard error, the white one as fitted
-    sg = math.sqrt(s2 * variance_inflation(best_tau, seconds))
+    sg = math.sqrt(s2 * variance_inflation(best_tau, seconds_of_data(aux)))
     aux[A_GM_SIG] = max(min(sg, top), FLOOR_GM * cfg[K_GM_SIGMA])
     aux[A_GM_TAU] = best_tau
     aux[A_GW_SIG] = max(min(math.sqrt(max(m0 - s2, 0.0)), top), FLOOR_WHITE * cfg[K_GPS_WHITE])

@@ -140,10 +140,10 @@ def test_a_nis_that_is_not_a_number_scores_as_the_cap():
     bank.AUX[0, L.A_LAST_NIS_ODO] = math.nan
     bank.AUX[1, L.A_LAST_NIS_ODO] = 3.0
     bank.AUX[:2, L.A_LOGLIK] = -1.0
-    score(bank.order, 2, bank.AUX, L.A_LAST_NIS_ODO, 50.0, 1.0)
+    score(bank.order, 2, bank.AUX, L.A_LAST_NIS_ODO, 50.0, 1.0, 0.0, 1.0)
     assert bank.AUX[0, L.A_LOGLIK] == -1.0 - 25.0
     assert bank.AUX[1, L.A_LOGLIK] == -1.0 - 1.5
-    score(bank.order, 2, bank.AUX, L.A_LAST_NIS_ODO, 50.0, 0.1)  # a tenth of an independent fix
+    score(bank.order, 2, bank.AUX, L.A_LAST_NIS_ODO, 50.0, 0.1, 0.0, 1.0)  # a tenth of an independent fix
     assert bank.AUX[0, L.A_LOGLIK] == -1.0 - 25.0 - 2.5
     assert bank.AUX[1, L.A_LOGLIK] == -1.0 - 1.5 - 0.15
 
@@ -319,3 +319,28 @@ def test_a_real_reversal_is_reported_at_the_first_fix_whatever_the_reversal_prio
                 worst = max(worst, abs(e.arc_length_m - float(np.interp(m.t_s, te, ts))))
     assert turned is not None and turned - back < 6.0, (turned, back)
     assert worst < 3.0
+
+
+def test_a_fix_scores_by_the_student_t_of_its_nis():
+    """With dof > 0 a 2-d fix scores -(dof + 2) / 2 log(1 + NIS / dof): scipy's log-density of the NIS
+    of a 2-d t (NIS / 2 is F(2, dof)) up to a constant. Session 27's departure fix, NIS 12.31 against
+    0.12, moves the score by 6.1 under the normal, by 4.1 (below switch_log_ratio, 4.6) with 4 dof."""
+    from scipy.stats import f as fdist
+
+    bank = HypothesisBank(2)
+    bank.set_live([0, 1], 0)
+    bank.AUX[0, L.A_LAST_NIS_GPS] = 12.31
+    bank.AUX[1, L.A_LAST_NIS_GPS] = 0.12
+    score(bank.order, 2, bank.AUX, L.A_LAST_NIS_GPS, 50.0, 1.0, 0.0, 2.0)
+    assert bank.AUX[1, L.A_LOGLIK] - bank.AUX[0, L.A_LOGLIK] == pytest.approx((12.31 - 0.12) / 2.0)
+    bank.AUX[:2, L.A_LOGLIK] = 0.0
+    score(bank.order, 2, bank.AUX, L.A_LAST_NIS_GPS, 50.0, 1.0, 4.0, 2.0)
+    lead = bank.AUX[1, L.A_LOGLIK] - bank.AUX[0, L.A_LOGLIK]
+    want = fdist.logpdf(0.12 / 2.0, 2, 4) - fdist.logpdf(12.31 / 2.0, 2, 4)
+    assert lead == pytest.approx(want, rel=1e-12)
+    assert 4.0 < lead < filter_config_for().switch_log_ratio
+    # the cap bounds a fix's weight under the t as under the normal, and the evidence weight scales it
+    bank.AUX[:2, L.A_LOGLIK] = 0.0
+    bank.AUX[0, L.A_LAST_NIS_GPS] = 1e6
+    score(bank.order, 2, bank.AUX, L.A_LAST_NIS_GPS, 50.0, 0.5, 4.0, 2.0)
+    assert bank.AUX[0, L.A_LOGLIK] == pytest.approx(-0.5 * 3.0 * math.log1p(50.0 / 4.0), rel=1e-12)

@@ -191,3 +191,27 @@ def test_tau_max_bounds_the_fitted_correlation_time():
     assert fitted[20.0] == pytest.approx(20.0)
     with pytest.raises(Exception, match="gps_adaptive_tau_max_s"):
         FilterConfig(gps_adaptive_tau_max_s=G.TAU_MIN_S)
+
+
+def test_score_dof_are_the_learned_variance_s():
+    """The Student-t a fix scores the hypotheses with has the learned variance's degrees of freedom:
+    seconds of data over tau (the chi-square whose relative variance is variance_inflation's 2 tau /
+    T), at least 1; 0 (the normal) where the model is declared known. They grow with the data (and
+    move with the refitted tau: 600 s of a 15 s receiver fit tau between 10 and 56 s on the way)."""
+    known = _cfg(window_s=0.0)
+    aux = np.zeros(L.NAUX)
+    G.reset(aux, known)
+    assert G.score_dof(aux, known) == 0.0
+    cfg = _cfg()
+    aux = np.zeros(L.NAUX)
+    G.reset(aux, cfg)
+    assert G.score_dof(aux, cfg) == 1.0  # the 30 s prior of a 120 s process: one correlation time
+    c = _receiver(600, 1.0, 1.2, 15.0, 0.8, seed=3)
+    dofs = []
+    for k, ck in enumerate(c):  # 1 Hz, along a straight east-going track at 10 m/s
+        G.observe(aux, cfg, 1000.0 + k, float(ck), 0.0, 1.0, 10.0 * k, 2.0)
+        if (k + 1) % 150 == 0:
+            dofs.append(G.score_dof(aux, cfg))
+            assert dofs[-1] == pytest.approx(max(_seconds(aux), aux[L.A_GM_TAU]) / aux[L.A_GM_TAU])
+    assert dofs[0] < dofs[-1]
+    assert dofs[-1] > 10.0  # 600 s of a process fitted at tens of seconds
