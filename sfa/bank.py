@@ -536,7 +536,7 @@ def run_segment(kind, t, vals, i0, stop_jumps, X, PP, AUX, CNT, MEM, IDX, order,
                 if k == 2:
                     score(order, nh, AUX, L.A_LAST_NIS_ODO, cap, wt, 0.0, 1.0)
                 else:  # under the model every hypothesis shares (gnss_noise.share), the reported one's
-                    dof = gnss_noise.score_dof(AUX[order[rep]], cfg) if cfg[L.K_GPS_SCORE_T] != 0.0 else 0.0
+                    dof = gnss_noise.score_dof(AUX[order[rep]], cfg)
                     score(order, nh, AUX, L.A_LAST_NIS_GPS, cap, wt, dof, 2.0)
                 prune(order, ns, X, AUX, IDX, G, LOFF, LLEN, cfg, work_i, work_f)
         if k == 2 and cfg[L.K_REVERSAL] != 0.0 and AUX[order[ns[1]], L.A_STILL] != 0.0:

@@ -62,6 +62,7 @@ from sfa.layout import (
     K_GM_SIGMA,
     K_GM_TAU,
     K_GPS_NOMINAL_SIGMA_H,
+    K_GPS_SCORE_T,
     K_GPS_WHITE,
 )
 
@@ -185,8 +186,8 @@ def score_dof(aux, cfg):
     freedom (its relative variance is 2 tau / T, as in ``variance_inflation``: Bartlett), and the fix's
     predictive density, the normal marginalised over that scale, is a t with those degrees of freedom.
     A model declared known (``gps_adaptive_window_s = 0``: the preset is the receiver) has no such
-    uncertainty."""
-    if cfg[K_AD_WINDOW] <= 0.0:
+    uncertainty; nor does a bank told to score fixes by the normal (``gps_score_student_t`` off)."""
+    if cfg[K_AD_WINDOW] <= 0.0 or cfg[K_GPS_SCORE_T] == 0.0:
         return 0.0
     tau = aux[A_GM_TAU]
     seconds = seconds_of_data(aux)

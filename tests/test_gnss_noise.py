@@ -42,14 +42,9 @@ def _model(aux):
     return aux[L.A_GM_SIG], aux[L.A_GM_TAU], aux[L.A_GW_SIG]
 
 
-def _seconds(aux) -> float:
-    """Seconds of data behind the best-observed lag (what fit's inflation is computed from)."""
-    return float(np.max(aux[L.A_AD_W + 1:L.A_AD_W + L.AD_NMOM]))
-
-
 def _fitted_sigma_g(aux) -> float:
     """The correlated sigma as estimated, before fit adds its standard error."""
-    return float(aux[L.A_GM_SIG] / math.sqrt(G.variance_inflation(aux[L.A_GM_TAU], _seconds(aux))))
+    return float(aux[L.A_GM_SIG] / math.sqrt(G.variance_inflation(aux[L.A_GM_TAU], G.seconds_of_data(aux))))
 
 
 def test_off_keeps_the_preset_exactly():
@@ -76,7 +71,7 @@ def test_recovers_the_receivers_statistics(rate_hz, sigma_g, tau, sigma_w):
     assert tau / 2.0 <= tau_hat <= tau * 2.0
     assert sw == pytest.approx(sigma_w, rel=0.35)
     # in use: the estimate plus one standard error, sqrt(2 tau / T) relative with T the 600 s memory
-    assert _seconds(aux) == pytest.approx(600.0)
+    assert G.seconds_of_data(aux) == pytest.approx(600.0)
     assert sg ** 2 == pytest.approx(_fitted_sigma_g(aux) ** 2 * (1.0 + math.sqrt(2.0 * tau_hat / 600.0)))
 
 
@@ -212,6 +207,7 @@ def test_score_dof_are_the_learned_variance_s():
         G.observe(aux, cfg, 1000.0 + k, float(ck), 0.0, 1.0, 10.0 * k, 2.0)
         if (k + 1) % 150 == 0:
             dofs.append(G.score_dof(aux, cfg))
-            assert dofs[-1] == pytest.approx(max(_seconds(aux), aux[L.A_GM_TAU]) / aux[L.A_GM_TAU])
+            assert dofs[-1] == pytest.approx(max(G.seconds_of_data(aux), aux[L.A_GM_TAU]) / aux[L.A_GM_TAU])
     assert dofs[0] < dofs[-1]
     assert dofs[-1] > 10.0  # 600 s of a process fitted at tens of seconds
+    assert G.score_dof(aux, _cfg(gps_score_student_t=False)) == 0.0  # told to score by the normal
