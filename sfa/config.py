@@ -270,6 +270,13 @@ class FilterConfig:
     #: and reported the wrong sense of travel, 6.8 m off (docs/filter.md, "Session 27"). A known
     #: model (no adaptation) keeps the normal
     gps_score_student_t: bool = slot(True, "K_GPS_SCORE_T")
+    #: score a gyro window against the line hypotheses by the normal's log-density, -(NIS + log S) / 2,
+    #: its log S weighted by the window's share of an independent measurement (sfa.bank.score_log_s),
+    #: instead of -NIS / 2. The curvature error, so S, depends on where a hypothesis is: scored by its
+    #: NIS alone, a mirrored hypothesis along a curve of the database gained on the true one on a
+    #: straight whatever the residual, and ran the estimate backwards in 16 of 140 long-outage seeds
+    #: without the reversal prior, in 1 with log S (docs/filter.md, "Session 30")
+    gyro_score_log_det: bool = slot(True, "K_GYRO_LOGDET")
     #: the line hypotheses' odometer score counts samples closer than this as the fraction dt / this of
     #: one independent sample, as cusum_min_interval_s does for fixes: a hypothesis's speed error at a
     #: departure persists for seconds, so 20 Hz samples are not 20x the evidence (urban-gnss seed 23's

@@ -54,9 +54,11 @@ from sfa.layout import (
     A_IMU_SAME,
     A_IMU_TO,
     A_INIT,
+    A_LAST_LOGS_GYRO,
     A_LAST_NIS_GPS,
     A_LAST_NIS_GYRO,
     A_LAST_NIS_ODO,
+    A_LAST_SHARE_GYRO,
     A_LOGLIK,
     A_ODO_TO,
     A_PB_H,
@@ -1225,13 +1227,17 @@ def gyro_window_update(x, P, aux, cnt, cfg):
     sm, nis = innovation1(P, aux, S, aux[A_GY_HS] / n, V, aux[A_GY_HV] / n, BG, 1.0, SG, aux[A_GY_HSG] / n,
                           MX, aux[A_GY_HMX] / n, r, y)
     aux[A_LAST_NIS_GYRO] = nis
+    # the window's Gaussian log-likelihood is -(NIS + log S) / 2: with S inflated by n_c, its NIS counts
+    # the curvature error once per n_c windows, and so must its log S (the score weights it by s0 / S)
+    s0 = (sm - r) + rw + lam * rc0  # the residual's variance h P h' + rw + lam rc0 (no n_c)
+    aux[A_LAST_LOGS_GYRO] = math.log(sm)  # (S >= r > 0)
+    aux[A_LAST_SHARE_GYRO] = s0 / sm
     if cfg[K_GYRO_AD_M] > 0.0 and rc0 > 0.0:
         # innovation-based estimate of the scale: the residual's variance is s0 = h P h' + rw + lam rc0
         # (the n_c inflation counts information, it is not variance), so each window observes
         # a = y^2 - h P h' - rw = lam rc0 + noise of variance 2 s0^2: the weighted least-squares lam is
         # sum(rc0 a / s0^2) / sum(rc0^2 / s0^2), each sum an EWMA over K_GYRO_AD_M metres (weight: the
         # window's length), started from the prior lam = 1 worth GYRO_LAM_PRIOR of that information
-        s0 = (sm - r) + rw + lam * rc0
         w = min(abs(x[V]) * max(aux[A_T_IMU] - aux[A_GY_T0], 1e-3) / cfg[K_GYRO_AD_M], 1.0)
         if aux[A_GY_LAM_DEN] == 0.0:
             aux[A_GY_LAM_NUM] = GYRO_LAM_PRIOR

@@ -11,7 +11,19 @@ import pytest
 from interface_modules.presets import GPS_PRESETS, IMU_PRESETS, ODOMETER_PRESETS
 from sfa import batch
 from sfa import layout as L
-from sfa.bank import I_JHI, I_JLO, NEF, NEI, NOST, O_LAST, O_ROW, HypothesisBank, RunOutput, score
+from sfa.bank import (
+    I_JHI,
+    I_JLO,
+    NEF,
+    NEI,
+    NOST,
+    O_LAST,
+    O_ROW,
+    HypothesisBank,
+    RunOutput,
+    score,
+    score_log_s,
+)
 from sfa.filter import TrackFilter
 from sfa.measurements import InitMeas
 from sfa.presets import filter_config_for
@@ -146,6 +158,31 @@ def test_a_nis_that_is_not_a_number_scores_as_the_cap():
     score(bank.order, 2, bank.AUX, L.A_LAST_NIS_ODO, 50.0, 0.1, 0.0, 1.0)  # a tenth of an independent fix
     assert bank.AUX[0, L.A_LOGLIK] == -1.0 - 25.0 - 2.5
     assert bank.AUX[1, L.A_LOGLIK] == -1.0 - 1.5 - 0.15
+
+
+def test_a_gyro_window_scores_by_its_normal_log_density():
+    """NIS and log S together move the score by the normal's log-density: the hypothesis that predicts
+    the wider spread gains nothing by it (scipy's norm.logpdf). A window that shares its curvature error
+    with n_c others (share s0 / S = 1 / n_c) counts its log S once in n_c, as its NIS already does."""
+    from scipy.stats import norm
+
+    bank = HypothesisBank(2)
+    bank.set_live([0, 1], 0)
+    y, s_narrow, s_wide = 0.02, 0.02 ** 2, 0.05 ** 2  # the residual [rad/s], each hypothesis's S
+    for h, sm in ((0, s_narrow), (1, s_wide)):
+        bank.AUX[h, L.A_LAST_NIS_GYRO] = y * y / sm
+        bank.AUX[h, L.A_LAST_LOGS_GYRO] = math.log(sm)
+    score(bank.order, 2, bank.AUX, L.A_LAST_NIS_GYRO, 50.0, 1.0, 0.0, 1.0)
+    assert bank.AUX[1, L.A_LOGLIK] > bank.AUX[0, L.A_LOGLIK]  # NIS alone: the wide one leads
+    score_log_s(bank.order, 2, bank.AUX, L.A_LAST_LOGS_GYRO, 1.0)
+    lead = bank.AUX[0, L.A_LOGLIK] - bank.AUX[1, L.A_LOGLIK]
+    want = norm.logpdf(y, 0.0, math.sqrt(s_narrow)) - norm.logpdf(y, 0.0, math.sqrt(s_wide))
+    assert lead == pytest.approx(want, rel=1e-12)
+    assert lead > 0.0
+    bank.AUX[:2, L.A_LOGLIK] = 0.0
+    score_log_s(bank.order, 2, bank.AUX, L.A_LAST_LOGS_GYRO, 0.25)  # one of n_c = 4 windows
+    lead = bank.AUX[0, L.A_LOGLIK] - bank.AUX[1, L.A_LOGLIK]
+    assert lead == pytest.approx(0.25 * math.log(s_wide / s_narrow) / 2.0)
 
 
 def _slot(bank, slot, line, s, sigma, t, loglik=0.0):

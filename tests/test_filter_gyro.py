@@ -11,6 +11,7 @@ import pytest
 from interface_modules.presets import GPS_PRESETS, IMU_PRESETS, ODOMETER_PRESETS
 from sfa import layout as L
 from sfa.filter import TrackFilter
+from sfa.measurements import ImuMeas
 from sfa.presets import datasheet_config_for, filter_config_for
 from sfa.synthetic import build_track_db, generate
 from track_db import TrackDatabase
@@ -89,17 +90,52 @@ def test_the_scale_stays_at_one_when_the_database_is_the_path(tmp_path):
         assert max(lam) < 1.5, max(lam)
 
 
-@pytest.mark.parametrize("prior, diverges", [(4.6, False), (0.0, True)])
-def test_a_reversal_needs_evidence_beyond_its_prior(prior, diverges):
-    """long-outage seed 7: with the learned scale the gyro evidence is weak, yet over the 70 s outage it
-    still drifted 5.6 log units towards the mirrored hypothesis spawned at the standstill, past the
-    switch ratio. With the reversal prior (the default, 1:100) it stays behind; without, the estimate
-    runs backwards."""
+def test_a_gyro_window_leaves_its_log_s_and_its_share_for_the_score(tmp_path):
+    """Each gyro window leaves what the hypotheses' score needs besides its NIS (sfa.bank.score_log_s):
+    log S of the very S its NIS divides by (NIS S = the mean residual squared), and its share of an
+    independent measurement s0 / S, in (0, 1], far below 1 where the curvature error (counted n_c
+    times over in S) dominates."""
+    import math
+
+    imu, odo, gps = IMU_PRESETS["mems-train"], ODOMETER_PRESETS["wheel-odometer"], GPS_PRESETS["standalone"]
+    with TrackDatabase.open(build_track_db(tmp_path / "synthetic.db")) as db:
+        run = generate(db, 1, 120.0, imu, odo, gps, seed=5)
+        cfg = datasheet_config_for("mems-train", "wheel-odometer", "standalone").replace(use_gyro=True)
+        assert cfg.curvature_corr_length_m > 0.0
+        f = TrackFilter(db, cfg)
+        shares, windows = [], 0
+        for m in run.measurements:
+            f.process(m)
+            hyps = f.hypotheses()
+            if not hyps or not isinstance(m, ImuMeas):
+                continue
+            aux = hyps[0][2]
+            if aux[L.A_LAST_NIS_GYRO] >= 0.0:
+                windows += 1
+                y = aux[L.A_GY_Y] / cfg.gyro_average_samples  # (a regular 100 Hz IMU: full windows)
+                s_window = math.exp(aux[L.A_LAST_LOGS_GYRO])
+                assert aux[L.A_LAST_NIS_GYRO] * s_window == pytest.approx(y * y, rel=1e-9)
+                shares.append(aux[L.A_LAST_SHARE_GYRO])
+        assert windows > 1000
+        assert 0.0 < min(shares) and max(shares) <= 1.0 + 1e-12
+        assert min(shares) < 0.1
+
+
+@pytest.mark.parametrize("prior, log_s, diverges",
+                         [(4.6, True, False), (0.0, True, False), (0.0, False, True)])
+def test_a_reversal_needs_evidence_beyond_its_prior(prior, log_s, diverges):
+    """long-outage seed 7: the tram stands inside a 70 s GNSS outage, and the mirrored hypothesis spawned
+    there is told apart from the true sense by the gyro alone. Scored by the NIS alone, the gyro
+    evidence drifted 5.6 log units towards the mirror over the outage, past the switch ratio: the mirror
+    runs along a curve of the database whose curvature error (so S) is larger, and a larger S lowers
+    the NIS whatever the residual. Scored by the normal's log-density (the NIS and log S,
+    ``gyro_score_log_det``) the true sense keeps the lead even without the reversal prior; with the
+    NIS alone only the prior (the default, 1:100) keeps the estimate from running backwards."""
     from interface_modules.tracks import database_path
 
     sc, meas, grid, te, ts, acc = _family_run("long-outage", 7)
     cfg = datasheet_config_for(sc.imu.preset, sc.odometer.preset, sc.gps.preset).replace(
-        use_gyro=True, reversal_log_prior=prior)
+        use_gyro=True, reversal_log_prior=prior, gyro_score_log_det=log_s)
     with TrackDatabase.open(database_path(sc)) as track:
         p95, _ = _p95_and_scale(track, cfg, meas, grid, te, ts, acc)
     assert (p95 > 100.0) if diverges else (p95 < 3.0), p95
