@@ -475,7 +475,7 @@ def run_segment(kind, t, vals, i0, stop_jumps, X, PP, AUX, CNT, MEM, IDX, order,
                 gnss_noise.share(AUX[order[j]], AUX[order[rep]], j == rep)
         elif k == 1 and nh > 1:  # one learned curvature-error scale, the reported hypothesis's
             for j in range(nh):
-                for q in range(L.A_GY_LAM, L.A_GY_LAM_DEN + 1):
+                for q in range(L.A_GY_LAM, L.A_GY_LAM_DFC + 1):
                     AUX[order[j], q] = AUX[order[rep], q]
         code = K.O_INVALID
         accepted = False

@@ -115,6 +115,12 @@ class FilterConfig:
     #: in metres travelled; docs/filter.md); 0 keeps the scale at 1 (the model-matched form).
     #: sfa.presets.datasheet_config_for sets 200 m: five curvature correlation lengths
     gyro_curvature_adaptive_m: float = slot(0.0, "K_GYRO_AD_M")
+    #: learn two scales (sfa.kernels.gyro_window_update): one of the floor s0 and one of the curve terms
+    #: (r k, l dk/ds), each by the same least squares, instead of one for the whole variance. An
+    #: as-built path's lateral offsets raise the floor (its scale 10-37 on long-outage seed 162); one scale
+    #: then multiplied a curve's terms by as much (the curve terms' own scale stays 1 there), and a
+    #: mirrored hypothesis on a curve explained the residual by them (long-outage seed 162; docs/filter.md, "Session 30")
+    gyro_two_scales: bool = slot(True, "K_GYRO_TWO_SCALES")
     # --- odometer
     #: odometer scale-factor random walk [1/sqrt(s)]
     odo_scale_rw_per_rts: float = slot(1.0e-5, "K_Q_KO", lambda c: c.odo_scale_rw_per_rts ** 2,

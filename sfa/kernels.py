@@ -41,11 +41,17 @@ from sfa.layout import (
     A_GY_HSG,
     A_GY_HV,
     A_GY_LAM,
+    A_GY_LAM_DCC,
     A_GY_LAM_DEN,
+    A_GY_LAM_DFC,
     A_GY_LAM_NUM,
+    A_GY_LAMC,
+    A_GY_LAMC_NUM,
     A_GY_N,
     A_GY_RC,
     A_GY_RC0,
+    A_GY_RCF,
+    A_GY_RCF0,
     A_GY_T0,
     A_GY_Y,
     A_GYRO_OK,
@@ -173,6 +179,7 @@ from sfa.layout import (
     K_GYRO_MIN_SPEED,
     K_GYRO_SIGMA,
     K_GYRO_TILT,
+    K_GYRO_TWO_SCALES,
     K_IMU_FAULT_HOLD,
     K_IMU_STUCK_N,
     K_IMU_TIMEOUT,
@@ -1183,6 +1190,8 @@ def step_imu(x, P, aux, cnt, mem, cfg, ts, tg, tk, t, fx, fy, fz, wx, wy, wz):
             aux[A_GY_HMX] = 0.0
             aux[A_GY_RC] = 0.0
             aux[A_GY_RC0] = 0.0
+            aux[A_GY_RCF] = 0.0
+            aux[A_GY_RCF0] = 0.0
         # h = [c (1 + s_g) v dk/ds, c (1 + s_g) k, .., 1 (b_g), .., c v k (s_g), gx (m_x)], summed
         aux[A_GY_N] += 1.0
         aux[A_GY_Y] += y
@@ -1192,22 +1201,42 @@ def step_imu(x, P, aux, cnt, mem, cfg, ts, tg, tk, t, fx, fy, fz, wx, wy, wz):
         aux[A_GY_HMX] += wx
         # curvature-model error from the geometry: a floor, a share of the curvature itself, and the
         # curve's onset uncertain by the registration length (sigma_k^2 = s0^2 + (r k)^2 + (l dk/ds)^2)
-        rc = (x[V] * cfg[K_CURV_SIGMA]) ** 2 + (x[V] * (cfg[K_CURV_REL] * k)) ** 2 \
-            + (x[V] * (cfg[K_CURV_REG_M] * dk_ds)) ** 2
+        rcf = (x[V] * cfg[K_CURV_SIGMA]) ** 2
+        rc = rcf + (x[V] * (cfg[K_CURV_REL] * k)) ** 2 + (x[V] * (cfg[K_CURV_REG_M] * dk_ds)) ** 2
         # the error is correlated over K_CURV_CORR_M metres: the n_c windows inside that length share
         # one draw of it, so each counts it n_c times over (n_c = L / distance per window, >= 1)
         aux[A_GY_RC0] += rc  # before the inflation: the variance the residual carries
+        aux[A_GY_RCF0] += rcf
         if cfg[K_CURV_CORR_M] > 0.0:
             dw = abs(x[V]) * cfg[K_GYRO_AVG_N] * min(max(dt_imu, 1e-3), cfg[K_GYRO_AVG_MAX_S])
             nc = cfg[K_CURV_CORR_M] / dw if dw > 0.0 else 1.0
             if nc > 1.0:
                 rc *= nc
+                rcf *= nc
         aux[A_GY_RC] += rc  # (v sigma_k)^2 n_c: does not average out
+        aux[A_GY_RCF] += rcf
         if aux[A_GY_N] >= cfg[K_GYRO_AVG_N]:
             gyro_window_update(x, P, aux, cnt, cfg)
     else:
         aux[A_GY_N] = 0.0  # a window holds consecutive samples that all qualify
     return O_ACCEPTED
+
+
+@njit(cache=True, inline="always", _nrt=False, error_model="numpy")
+def _two_scales(nf, nc, dff, dcc, dfc):
+    """The two curvature-error scales (floor, curve terms) in [1, GYRO_LAM_MAX] that solve the normal
+    equations [[dff, dfc], [dfc, dcc]] (lf, lc) = (nf, nc): where one falls below 1 it is held at 1 and
+    the other solved alone."""
+    det = dff * dcc - dfc * dfc
+    lf = (nf * dcc - nc * dfc) / det if det > 0.0 else 1.0
+    lc = (nc * dff - nf * dfc) / det if det > 0.0 else 1.0
+    if lf < 1.0:
+        lf = 1.0
+        lc = (nc - dfc) / dcc
+    elif lc < 1.0:
+        lc = 1.0
+        lf = (nf - dfc) / dff
+    return min(max(lf, 1.0), GYRO_LAM_MAX), min(max(lc, 1.0), GYRO_LAM_MAX)
 
 
 @njit(cache=True, _nrt=False, error_model="numpy")
@@ -1219,17 +1248,24 @@ def gyro_window_update(x, P, aux, cnt, cfg):
     n = aux[A_GY_N]
     aux[A_GY_N] = 0.0  # emptied before the update: its own correction must not shift the window
     sync_block(x, P, aux, cfg, cnt)
+    two = cfg[K_GYRO_TWO_SCALES] != 0.0
     lam = aux[A_GY_LAM] if aux[A_GY_LAM] >= 1.0 else 1.0  # learned curvature-error scale (1: none yet)
+    lamc = (aux[A_GY_LAMC] if aux[A_GY_LAMC] >= 1.0 else 1.0) if two else lam  # the curve terms' scale
     rw = cfg[K_GYRO_SIGMA] ** 2 / n  # white gyro noise of the window mean
     rc0 = aux[A_GY_RC0] / n  # mean curvature-model variance (v sigma_k)^2
-    r = rw + lam * aux[A_GY_RC] / n  # ... and inflated by n_c for the information it carries
+    rcf0 = aux[A_GY_RCF0] / n  # ... its floor's part (v s0)^2
+    rcc0 = max(rc0 - rcf0, 0.0)  # ... and its curve terms' (v r k)^2 + (v l dk/ds)^2
+    rcf = aux[A_GY_RCF] / n
+    # R: the white noise, and the curvature error inflated by n_c and scaled, its curve terms by lamc
+    # (written as lam's and lamc's difference: with one scale the same bits as the single-scale R)
+    r = rw + lam * aux[A_GY_RC] / n + (lamc - lam) * max(aux[A_GY_RC] / n - rcf, 0.0)
     y = aux[A_GY_Y] / n  # mean residual
     sm, nis = innovation1(P, aux, S, aux[A_GY_HS] / n, V, aux[A_GY_HV] / n, BG, 1.0, SG, aux[A_GY_HSG] / n,
                           MX, aux[A_GY_HMX] / n, r, y)
     aux[A_LAST_NIS_GYRO] = nis
     # the window's Gaussian log-likelihood is -(NIS + log S) / 2: with S inflated by n_c, its NIS counts
     # the curvature error once per n_c windows, and so must its log S (the score weights it by s0 / S)
-    s0 = (sm - r) + rw + lam * rc0  # the residual's variance h P h' + rw + lam rc0 (no n_c)
+    s0 = (sm - r) + rw + lam * rc0 + (lamc - lam) * rcc0  # the residual's variance h P h' + rw + .. (no n_c)
     aux[A_LAST_LOGS_GYRO] = math.log(sm)  # (S >= r > 0)
     aux[A_LAST_SHARE_GYRO] = s0 / sm
     if cfg[K_GYRO_AD_M] > 0.0 and rc0 > 0.0:
@@ -1237,14 +1273,31 @@ def gyro_window_update(x, P, aux, cnt, cfg):
         # (the n_c inflation counts information, it is not variance), so each window observes
         # a = y^2 - h P h' - rw = lam rc0 + noise of variance 2 s0^2: the weighted least-squares lam is
         # sum(rc0 a / s0^2) / sum(rc0^2 / s0^2), each sum an EWMA over K_GYRO_AD_M metres (weight: the
-        # window's length), started from the prior lam = 1 worth GYRO_LAM_PRIOR of that information
+        # window's length), started from the prior lam = 1 worth GYRO_LAM_PRIOR of that information.
+        # Two scales: a = lam rc0_f + lam_c rc0_c, the same least squares in two unknowns
         w = min(abs(x[V]) * max(aux[A_T_IMU] - aux[A_GY_T0], 1e-3) / cfg[K_GYRO_AD_M], 1.0)
+        a = y * y - (sm - r) - rw
+        i2 = 1.0 / (s0 * s0)
         if aux[A_GY_LAM_DEN] == 0.0:
             aux[A_GY_LAM_NUM] = GYRO_LAM_PRIOR
             aux[A_GY_LAM_DEN] = GYRO_LAM_PRIOR
-        aux[A_GY_LAM_NUM] += w * (rc0 * (y * y - (sm - r) - rw) / (s0 * s0) - aux[A_GY_LAM_NUM])
-        aux[A_GY_LAM_DEN] += w * (rc0 * rc0 / (s0 * s0) - aux[A_GY_LAM_DEN])
-        aux[A_GY_LAM] = min(max(aux[A_GY_LAM_NUM] / aux[A_GY_LAM_DEN], 1.0), GYRO_LAM_MAX)
+            aux[A_GY_LAMC_NUM] = GYRO_LAM_PRIOR
+            aux[A_GY_LAM_DCC] = GYRO_LAM_PRIOR
+            aux[A_GY_LAM_DFC] = 0.0
+        if two:
+            aux[A_GY_LAM_NUM] += w * (rcf0 * a * i2 - aux[A_GY_LAM_NUM])
+            aux[A_GY_LAM_DEN] += w * (rcf0 * rcf0 * i2 - aux[A_GY_LAM_DEN])
+            aux[A_GY_LAMC_NUM] += w * (rcc0 * a * i2 - aux[A_GY_LAMC_NUM])
+            aux[A_GY_LAM_DCC] += w * (rcc0 * rcc0 * i2 - aux[A_GY_LAM_DCC])
+            aux[A_GY_LAM_DFC] += w * (rcf0 * rcc0 * i2 - aux[A_GY_LAM_DFC])
+            lf, lc = _two_scales(aux[A_GY_LAM_NUM], aux[A_GY_LAMC_NUM], aux[A_GY_LAM_DEN],
+                                 aux[A_GY_LAM_DCC], aux[A_GY_LAM_DFC])
+            aux[A_GY_LAM] = lf
+            aux[A_GY_LAMC] = lc
+        else:
+            aux[A_GY_LAM_NUM] += w * (rc0 * a * i2 - aux[A_GY_LAM_NUM])
+            aux[A_GY_LAM_DEN] += w * (rc0 * rc0 * i2 - aux[A_GY_LAM_DEN])
+            aux[A_GY_LAM] = min(max(aux[A_GY_LAM_NUM] / aux[A_GY_LAM_DEN], 1.0), GYRO_LAM_MAX)
     if nis <= cfg[K_GATE_GYRO]:
         if apply_update1(x, P, aux, sm, y, cfg, cnt):
             cnt[C_GYRO_OK] += 1

@@ -153,10 +153,19 @@ A_GY_LAM = A_AD_HIST + AD_ENTRY * AD_HIST
 #: modelled curvature error is small next to the gyro's own noise barely moves it
 A_GY_LAM_NUM = A_GY_LAM + 1
 A_GY_LAM_DEN = A_GY_LAM + 2
-A_GY_RC0 = A_GY_LAM + 3  #: the window's A_GY_RC before the correlation inflation n_c [rad^2/s^2]
+#: With K_GYRO_TWO_SCALES the floor's scale is A_GY_LAM and the curve terms' (r k, l dk/ds) their own,
+#: A_GY_LAMC: its numerator, and the normal matrix's other two entries sum(rc0_c^2 / s0^2) and
+#: sum(rc0_f rc0_c / s0^2) (A_GY_LAM_NUM, A_GY_LAM_DEN then hold the floor's)
+A_GY_LAMC = A_GY_LAM + 3
+A_GY_LAMC_NUM = A_GY_LAM + 4
+A_GY_LAM_DCC = A_GY_LAM + 5
+A_GY_LAM_DFC = A_GY_LAM + 6
+A_GY_RC0 = A_GY_LAM + 7  #: the window's A_GY_RC before the correlation inflation n_c [rad^2/s^2]
+A_GY_RCF0 = A_GY_LAM + 8  #: the floor's part of A_GY_RC0 [rad^2/s^2]
+A_GY_RCF = A_GY_LAM + 9  #: the floor's part of A_GY_RC [rad^2/s^2]
 #: Scratch for the updates (no meaning between calls): P H' (two columns of NX) and the gain K (two
 #: columns of NX). Kept in aux so the compiled updates allocate nothing per measurement.
-A_WK_PHT = A_GY_RC0 + 1
+A_WK_PHT = A_GY_RCF + 1
 A_WK_K = A_WK_PHT + 2 * NX
 #: Solution separation (``sfa.separation``; docs/filter.md, "Solution separation"), the same in every
 #: live hypothesis: what was detected (bits EXCLUDED_GNSS, DETECTED of sfa.separation) until A_SS_UNTIL,

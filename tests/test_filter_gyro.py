@@ -121,6 +121,21 @@ def test_a_gyro_window_leaves_its_log_s_and_its_share_for_the_score(tmp_path):
         assert min(shares) < 0.1
 
 
+def test_two_scales_solve_the_normal_equations_held_at_one():
+    """The floor's and the curve terms' scales solve the 2x2 weighted least squares (numpy's solve);
+    where one falls below 1 it is held at 1 and the other solved alone."""
+    from sfa.kernels import _two_scales
+
+    d = np.array([[2.0, 0.5], [0.5, 1.0]])
+    for lam in ((3.0, 1.5), (27.0, 1.0), (1.0, 4.0)):
+        nf, nc = d @ np.array(lam)
+        assert _two_scales(nf, nc, d[0, 0], d[1, 1], d[0, 1]) == pytest.approx(lam, rel=1e-12)
+    nf, nc = d @ np.array([5.0, 0.2])  # the curve scale's fit below 1: held there, the floor's alone
+    assert _two_scales(nf, nc, d[0, 0], d[1, 1], d[0, 1]) == pytest.approx(((nf - 0.5) / 2.0, 1.0))
+    nf, nc = d @ np.array([0.3, 6.0])  # the floor's below 1
+    assert _two_scales(nf, nc, d[0, 0], d[1, 1], d[0, 1]) == pytest.approx((1.0, (nc - 0.5) / 1.0))
+
+
 @pytest.mark.parametrize("prior, log_s, diverges",
                          [(4.6, True, False), (0.0, True, False), (0.0, False, True)])
 def test_a_reversal_needs_evidence_beyond_its_prior(prior, log_s, diverges):
@@ -129,13 +144,15 @@ def test_a_reversal_needs_evidence_beyond_its_prior(prior, log_s, diverges):
     evidence drifted 5.6 log units towards the mirror over the outage, past the switch ratio: the mirror
     runs along a curve of the database whose curvature error (so S) is larger, and a larger S lowers
     the NIS whatever the residual. Scored by the normal's log-density (the NIS and log S,
-    ``gyro_score_log_det``) the true sense keeps the lead even without the reversal prior; with the
-    NIS alone only the prior (the default, 1:100) keeps the estimate from running backwards."""
+    ``gyro_score_log_det``), and with the floor's and the curve terms' scales learned apart
+    (``gyro_two_scales``), the true sense keeps the lead even without the reversal prior; each change
+    alone keeps it too. With neither (the code before session 30) only the prior (the default, 1:100)
+    keeps the estimate from running backwards."""
     from interface_modules.tracks import database_path
 
     sc, meas, grid, te, ts, acc = _family_run("long-outage", 7)
     cfg = datasheet_config_for(sc.imu.preset, sc.odometer.preset, sc.gps.preset).replace(
-        use_gyro=True, reversal_log_prior=prior, gyro_score_log_det=log_s)
+        use_gyro=True, reversal_log_prior=prior, gyro_score_log_det=log_s, gyro_two_scales=log_s)
     with TrackDatabase.open(database_path(sc)) as track:
         p95, _ = _p95_and_scale(track, cfg, meas, grid, te, ts, acc)
     assert (p95 > 100.0) if diverges else (p95 < 3.0), p95

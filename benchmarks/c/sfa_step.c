@@ -779,25 +779,59 @@ static void gyro_window_update(double *x, double *P, double *aux, long *cnt, con
     double n = aux[A_GY_N];
     aux[A_GY_N] = 0.0;
     sync_block(x, P, aux, cfg, cnt);
+    int two = cfg[K_GYRO_TWO_SCALES] != 0.0;
     double lam = aux[A_GY_LAM] >= 1.0 ? aux[A_GY_LAM] : 1.0; /* learned curvature-error scale */
+    double lamc = two ? (aux[A_GY_LAMC] >= 1.0 ? aux[A_GY_LAMC] : 1.0) : lam; /* the curve terms' */
     double rw = sq(cfg[K_GYRO_SIGMA]) / n;
     double rc0 = aux[A_GY_RC0] / n;
-    double r = rw + lam * aux[A_GY_RC] / n;
+    double rcf0 = aux[A_GY_RCF0] / n;
+    double rcc0 = fmax(rc0 - rcf0, 0.0);
+    double rcf = aux[A_GY_RCF] / n;
+    double r = rw + lam * aux[A_GY_RC] / n + (lamc - lam) * fmax(aux[A_GY_RC] / n - rcf, 0.0);
     double y = aux[A_GY_Y] / n;
     double nis;
     double sm = innovation1(P, aux, S, aux[A_GY_HS] / n, V, aux[A_GY_HV] / n, BG, 1.0, SG, aux[A_GY_HSG] / n,
                             MX, aux[A_GY_HMX] / n, r, y, &nis);
     aux[A_LAST_NIS_GYRO] = nis;
+    double s0 = (sm - r) + rw + lam * rc0 + (lamc - lam) * rcc0; /* the residual's variance (no n_c) */
+    aux[A_LAST_LOGS_GYRO] = log(sm);
+    aux[A_LAST_SHARE_GYRO] = s0 / sm;
     if (cfg[K_GYRO_AD_M] > 0.0 && rc0 > 0.0) { /* weighted least-squares lam, EWMAs over metres */
-        double s0 = (sm - r) + rw + lam * rc0;
         double w = fmin(fabs(x[V]) * fmax(aux[A_T_IMU] - aux[A_GY_T0], 1e-3) / cfg[K_GYRO_AD_M], 1.0);
+        double a = y * y - (sm - r) - rw;
+        double i2 = 1.0 / (s0 * s0);
         if (aux[A_GY_LAM_DEN] == 0.0) {
             aux[A_GY_LAM_NUM] = GYRO_LAM_PRIOR;
             aux[A_GY_LAM_DEN] = GYRO_LAM_PRIOR;
+            aux[A_GY_LAMC_NUM] = GYRO_LAM_PRIOR;
+            aux[A_GY_LAM_DCC] = GYRO_LAM_PRIOR;
+            aux[A_GY_LAM_DFC] = 0.0;
         }
-        aux[A_GY_LAM_NUM] += w * (rc0 * (y * y - (sm - r) - rw) / (s0 * s0) - aux[A_GY_LAM_NUM]);
-        aux[A_GY_LAM_DEN] += w * (rc0 * rc0 / (s0 * s0) - aux[A_GY_LAM_DEN]);
-        aux[A_GY_LAM] = fmin(fmax(aux[A_GY_LAM_NUM] / aux[A_GY_LAM_DEN], 1.0), GYRO_LAM_MAX);
+        if (two) { /* a = lam rc0_f + lam_c rc0_c: the same least squares in two unknowns */
+            aux[A_GY_LAM_NUM] += w * (rcf0 * a * i2 - aux[A_GY_LAM_NUM]);
+            aux[A_GY_LAM_DEN] += w * (rcf0 * rcf0 * i2 - aux[A_GY_LAM_DEN]);
+            aux[A_GY_LAMC_NUM] += w * (rcc0 * a * i2 - aux[A_GY_LAMC_NUM]);
+            aux[A_GY_LAM_DCC] += w * (rcc0 * rcc0 * i2 - aux[A_GY_LAM_DCC]);
+            aux[A_GY_LAM_DFC] += w * (rcf0 * rcc0 * i2 - aux[A_GY_LAM_DFC]);
+            double nf = aux[A_GY_LAM_NUM], nc = aux[A_GY_LAMC_NUM], dff = aux[A_GY_LAM_DEN];
+            double dcc = aux[A_GY_LAM_DCC], dfc = aux[A_GY_LAM_DFC];
+            double det = dff * dcc - dfc * dfc;
+            double lf = det > 0.0 ? (nf * dcc - nc * dfc) / det : 1.0;
+            double lc = det > 0.0 ? (nc * dff - nf * dfc) / det : 1.0;
+            if (lf < 1.0) {
+                lf = 1.0;
+                lc = (nc - dfc) / dcc;
+            } else if (lc < 1.0) {
+                lc = 1.0;
+                lf = (nf - dfc) / dff;
+            }
+            aux[A_GY_LAM] = fmin(fmax(lf, 1.0), GYRO_LAM_MAX);
+            aux[A_GY_LAMC] = fmin(fmax(lc, 1.0), GYRO_LAM_MAX);
+        } else {
+            aux[A_GY_LAM_NUM] += w * (rc0 * a * i2 - aux[A_GY_LAM_NUM]);
+            aux[A_GY_LAM_DEN] += w * (rc0 * rc0 * i2 - aux[A_GY_LAM_DEN]);
+            aux[A_GY_LAM] = fmin(fmax(aux[A_GY_LAM_NUM] / aux[A_GY_LAM_DEN], 1.0), GYRO_LAM_MAX);
+        }
     }
     if (nis <= cfg[K_GATE_GYRO]) {
         if (apply_update1(x, P, aux, sm, y, cfg, cnt)) {
@@ -876,6 +910,8 @@ static long step_imu(double *x, double *P, double *aux, long *cnt, double *mem, 
             aux[A_GY_HMX] = 0.0;
             aux[A_GY_RC] = 0.0;
             aux[A_GY_RC0] = 0.0;
+            aux[A_GY_RCF] = 0.0;
+            aux[A_GY_RCF0] = 0.0;
         }
         aux[A_GY_N] += 1.0;
         aux[A_GY_Y] += y;
@@ -884,17 +920,23 @@ static long step_imu(double *x, double *P, double *aux, long *cnt, double *mem, 
         aux[A_GY_HSG] += c * x[V] * k;
         aux[A_GY_HMX] += wx;
         /* curvature-model error from the geometry: sigma_k^2 = s0^2 + (r k)^2 + (l dk/ds)^2 */
-        double rc = sq(x[V] * cfg[K_CURV_SIGMA]) + sq(x[V] * (cfg[K_CURV_REL] * k)) + sq(x[V] * (cfg[K_CURV_REG_M] * dk_ds));
+        double rcf = sq(x[V] * cfg[K_CURV_SIGMA]);
+        double rc = rcf + sq(x[V] * (cfg[K_CURV_REL] * k)) + sq(x[V] * (cfg[K_CURV_REG_M] * dk_ds));
         aux[A_GY_RC0] += rc;
+        aux[A_GY_RCF0] += rcf;
         /* correlated over K_CURV_CORR_M: the windows inside that length share it (n_c >= 1) */
         if (cfg[K_CURV_CORR_M] > 0.0) {
             double dtc = dt_imu > 1e-3 ? dt_imu : 1e-3;
             if (dtc > cfg[K_GYRO_AVG_MAX_S]) dtc = cfg[K_GYRO_AVG_MAX_S];
             double dw = fabs(x[V]) * cfg[K_GYRO_AVG_N] * dtc;
             double nc = dw > 0.0 ? cfg[K_CURV_CORR_M] / dw : 1.0;
-            if (nc > 1.0) rc *= nc;
+            if (nc > 1.0) {
+                rc *= nc;
+                rcf *= nc;
+            }
         }
         aux[A_GY_RC] += rc; /* (v sigma_k)^2 n_c: does not average out */
+        aux[A_GY_RCF] += rcf;
         if (aux[A_GY_N] >= cfg[K_GYRO_AVG_N]) gyro_window_update(x, P, aux, cnt, cfg);
     } else {
         aux[A_GY_N] = 0.0; /* a window holds consecutive samples that all qualify */
