@@ -117,9 +117,9 @@ class FilterConfig:
     gyro_curvature_adaptive_m: float = slot(0.0, "K_GYRO_AD_M")
     #: learn two scales (sfa.kernels.gyro_window_update): one of the floor s0 and one of the curve terms
     #: (r k, l dk/ds), each by the same least squares, instead of one for the whole variance. An
-    #: as-built path's lateral offsets raise the floor (its scale 10-37 on long-outage seed 162); one scale
-    #: then multiplied a curve's terms by as much (the curve terms' own scale stays 1 there), and a
-    #: mirrored hypothesis on a curve explained the residual by them (long-outage seed 162; docs/filter.md, "Session 30")
+    #: as-built path's lateral offsets raise the floor (its scale 10-37 on long-outage seed 162); one
+    #: scale then multiplied a curve's terms by as much (their own scale stays 1 there), and a mirrored
+    #: hypothesis on a curve explained the residual by them (docs/filter.md, "Session 30")
     gyro_two_scales: bool = slot(True, "K_GYRO_TWO_SCALES")
     # --- odometer
     #: odometer scale-factor random walk [1/sqrt(s)]
