@@ -156,14 +156,14 @@ def score(order, nh, AUX, slot, cap, weight, dof, dim):
 
 @njit(cache=True, _nrt=False, error_model="numpy")
 def score_log_s(order, nh, AUX, slot, weight):
-    """The normal log-likelihood's other term: loglik -= weight log S / 2 with log S in ``slot``. With
+    """The normal log-likelihood's other term: loglik -= weight log S / 2 with S in ``slot``. With
     it a hypothesis does not gain by predicting a wider spread (a gyro window on a curve, whose
     curvature error is larger, against one on a straight: a score of NIS alone favoured the curve's).
     ``weight``, the same for every hypothesis so that the unit of S cancels, is the share of an
     independent measurement the measurement carries."""
     for j in range(nh):
         h = order[j]
-        AUX[h, L.A_LOGLIK] -= weight * 0.5 * AUX[h, slot]
+        AUX[h, L.A_LOGLIK] -= weight * 0.5 * math.log(AUX[h, slot])
 
 
 @njit(cache=True, _nrt=False, error_model="numpy")
@@ -530,7 +530,7 @@ def run_segment(kind, t, vals, i0, stop_jumps, X, PP, AUX, CNT, MEM, IDX, order,
                 if all_ok and any_on:
                     score(order, nh, AUX, L.A_LAST_NIS_GYRO, cap, 1.0, 0.0, 1.0)
                     if cfg[L.K_GYRO_LOGDET] != 0.0:  # one share for all: log S's unit cancels
-                        score_log_s(order, nh, AUX, L.A_LAST_LOGS_GYRO, AUX[order[rep], L.A_LAST_SHARE_GYRO])
+                        score_log_s(order, nh, AUX, L.A_LAST_S_GYRO, AUX[order[rep], L.A_LAST_SHARE_GYRO])
                     prune(order, ns, X, AUX, IDX, G, LOFF, LLEN, cfg, work_i, work_f)
             elif accepted or explained:
                 # a measurement every hypothesis rejects is a sensor fault, not evidence; one inside some

@@ -60,10 +60,10 @@ from sfa.layout import (
     A_IMU_SAME,
     A_IMU_TO,
     A_INIT,
-    A_LAST_LOGS_GYRO,
     A_LAST_NIS_GPS,
     A_LAST_NIS_GYRO,
     A_LAST_NIS_ODO,
+    A_LAST_S_GYRO,
     A_LAST_SHARE_GYRO,
     A_LOGLIK,
     A_ODO_TO,
@@ -1266,7 +1266,7 @@ def gyro_window_update(x, P, aux, cnt, cfg):
     # the window's Gaussian log-likelihood is -(NIS + log S) / 2: with S inflated by n_c, its NIS counts
     # the curvature error once per n_c windows, and so must its log S (the score weights it by s0 / S)
     s0 = (sm - r) + rw + lam * rc0 + (lamc - lam) * rcc0  # the residual's variance h P h' + rw + .. (no n_c)
-    aux[A_LAST_LOGS_GYRO] = math.log(sm)  # (S >= r > 0)
+    aux[A_LAST_S_GYRO] = sm  # (S >= r > 0; its log is taken only where hypotheses are scored)
     aux[A_LAST_SHARE_GYRO] = s0 / sm
     if cfg[K_GYRO_AD_M] > 0.0 and rc0 > 0.0:
         # innovation-based estimate of the scale: the residual's variance is s0 = h P h' + rw + lam rc0

@@ -187,10 +187,10 @@ A_RELOC_N = A_SS_MASK + 8
 A_RELOC_E0 = A_SS_MASK + 9
 A_RELOC_N0 = A_SS_MASK + 10
 A_RELOC_DS = A_SS_MASK + 11
-#: The last gyro window's log innovation variance log S [log (rad/s)^2], and the share of an independent
+#: The last gyro window's innovation variance S [(rad/s)^2], and the share of an independent
 #: measurement it carries [-]: s0 / S, its residual's variance over S, which counts the curvature error
 #: n_c times over (kernels.step_imu: n_c windows share one draw of it), for the hypotheses' score
-A_LAST_LOGS_GYRO = A_SS_MASK + 12
+A_LAST_S_GYRO = A_SS_MASK + 12
 A_LAST_SHARE_GYRO = A_SS_MASK + 13
 NAUX = A_SS_MASK + 14
 

@@ -171,16 +171,16 @@ def test_a_gyro_window_scores_by_its_normal_log_density():
     y, s_narrow, s_wide = 0.02, 0.02 ** 2, 0.05 ** 2  # the residual [rad/s], each hypothesis's S
     for h, sm in ((0, s_narrow), (1, s_wide)):
         bank.AUX[h, L.A_LAST_NIS_GYRO] = y * y / sm
-        bank.AUX[h, L.A_LAST_LOGS_GYRO] = math.log(sm)
+        bank.AUX[h, L.A_LAST_S_GYRO] = sm
     score(bank.order, 2, bank.AUX, L.A_LAST_NIS_GYRO, 50.0, 1.0, 0.0, 1.0)
     assert bank.AUX[1, L.A_LOGLIK] > bank.AUX[0, L.A_LOGLIK]  # NIS alone: the wide one leads
-    score_log_s(bank.order, 2, bank.AUX, L.A_LAST_LOGS_GYRO, 1.0)
+    score_log_s(bank.order, 2, bank.AUX, L.A_LAST_S_GYRO, 1.0)
     lead = bank.AUX[0, L.A_LOGLIK] - bank.AUX[1, L.A_LOGLIK]
     want = norm.logpdf(y, 0.0, math.sqrt(s_narrow)) - norm.logpdf(y, 0.0, math.sqrt(s_wide))
     assert lead == pytest.approx(want, rel=1e-12)
     assert lead > 0.0
     bank.AUX[:2, L.A_LOGLIK] = 0.0
-    score_log_s(bank.order, 2, bank.AUX, L.A_LAST_LOGS_GYRO, 0.25)  # one of n_c = 4 windows
+    score_log_s(bank.order, 2, bank.AUX, L.A_LAST_S_GYRO, 0.25)  # one of n_c = 4 windows
     lead = bank.AUX[0, L.A_LOGLIK] - bank.AUX[1, L.A_LOGLIK]
     assert lead == pytest.approx(0.25 * math.log(s_wide / s_narrow) / 2.0)
 

@@ -90,12 +90,11 @@ def test_the_scale_stays_at_one_when_the_database_is_the_path(tmp_path):
         assert max(lam) < 1.5, max(lam)
 
 
-def test_a_gyro_window_leaves_its_log_s_and_its_share_for_the_score(tmp_path):
+def test_a_gyro_window_leaves_its_s_and_its_share_for_the_score(tmp_path):
     """Each gyro window leaves what the hypotheses' score needs besides its NIS (sfa.bank.score_log_s):
-    log S of the very S its NIS divides by (NIS S = the mean residual squared), and its share of an
+    the very S its NIS divides by (NIS S = the mean residual squared), and its share of an
     independent measurement s0 / S, in (0, 1], far below 1 where the curvature error (counted n_c
     times over in S) dominates."""
-    import math
 
     imu, odo, gps = IMU_PRESETS["mems-train"], ODOMETER_PRESETS["wheel-odometer"], GPS_PRESETS["standalone"]
     with TrackDatabase.open(build_track_db(tmp_path / "synthetic.db")) as db:
@@ -113,7 +112,7 @@ def test_a_gyro_window_leaves_its_log_s_and_its_share_for_the_score(tmp_path):
             if aux[L.A_LAST_NIS_GYRO] >= 0.0:
                 windows += 1
                 y = aux[L.A_GY_Y] / cfg.gyro_average_samples  # (a regular 100 Hz IMU: full windows)
-                s_window = math.exp(aux[L.A_LAST_LOGS_GYRO])
+                s_window = aux[L.A_LAST_S_GYRO]
                 assert aux[L.A_LAST_NIS_GYRO] * s_window == pytest.approx(y * y, rel=1e-9)
                 shares.append(aux[L.A_LAST_SHARE_GYRO])
         assert windows > 1000

@@ -794,7 +794,7 @@ static void gyro_window_update(double *x, double *P, double *aux, long *cnt, con
                             MX, aux[A_GY_HMX] / n, r, y, &nis);
     aux[A_LAST_NIS_GYRO] = nis;
     double s0 = (sm - r) + rw + lam * rc0 + (lamc - lam) * rcc0; /* the residual's variance (no n_c) */
-    aux[A_LAST_LOGS_GYRO] = log(sm);
+    aux[A_LAST_S_GYRO] = sm;
     aux[A_LAST_SHARE_GYRO] = s0 / sm;
     if (cfg[K_GYRO_AD_M] > 0.0 && rc0 > 0.0) { /* weighted least-squares lam, EWMAs over metres */
         double w = fmin(fabs(x[V]) * fmax(aux[A_T_IMU] - aux[A_GY_T0], 1e-3) / cfg[K_GYRO_AD_M], 1.0);
