@@ -25,6 +25,20 @@ def test_first_seed_selects_held_out_worlds():
     # the information bound's column pools the same seeds' bound sigmas (tools.info_bound)
     assert held["bound_p95"] == expected_p95(np.concatenate([r["bound-sigma"] for r in runs]))
     assert all(r["bound-sigma"].shape == r["sfa"].shape for r in runs)
+    # seed by seed against the plain EKF: counted and the median ratio of the same runs' own p95s
+    sfa = [float(np.percentile(r["sfa"], 95)) for r in runs]
+    ekf = [float(np.percentile(r["plain-ekf"], 95)) for r in runs]
+    assert held["seeds_sfa_le_ekf"] == sum(a <= b for a, b in zip(sfa, ekf, strict=True))
+    assert held["seed_ratio_median"] == float(np.median(np.array(ekf) / np.array(sfa)))
+    line = G.markdown_table([held]).splitlines()[-1]
+    assert f"| {held['seeds_sfa_le_ekf']} / 2 ({held['seed_ratio_median']:.2f}x) |" in line
+
+
+def test_seed_comparison_counts_the_seeds_where_sfa_is_not_worse():
+    """Three worlds: SFA better on one, equal on one, worse on one; the median ratio is the middle."""
+    runs = [{"sfa": np.full(10, a), "plain-ekf": np.full(10, b)} for a, b in ((1.0, 2.0), (1.0, 1.0),
+                                                                              (2.0, 1.0))]
+    assert G.seed_comparison(runs) == {"seeds_sfa_le_ekf": 2, "seed_ratio_median": 1.0}
 
 
 def test_the_bound_uses_the_worlds_gnss_error():
