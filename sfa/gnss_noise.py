@@ -19,7 +19,11 @@ The moments at lag 0 and at ``AD_LAGS_S`` (pairs at least MIN_PAIR_DISTANCE_M ap
 track) are kept as weighted means with a memory of ``gps_adaptive_window_s`` seconds, starting from
 the preset's model with a weight of ``gps_adaptive_prior_s`` seconds of data; each residual is
 clipped at 3 sigma of the current lag-0 moment (a multipath jump widens the model, it does not blow
-it up). After each fix the model is refitted: ``tau`` by least squares over a logarithmic grid,
+it up). Pairs both at one standstill (``gps_fit_standstill``) give instead the structure
+function ``D(L) = E[(c(t) - c(t - L))^2] / 2 = sigma_w^2 + sigma_g^2 (1 - exp(-L / tau))``: at one place
+the map's offset is the same in both residuals and cancels, so the short lags a slow train never spends
+25 m in are observed at every stop. After each fix the model is refitted: ``tau`` by least squares
+over a logarithmic grid,
 ``sigma_g^2`` in closed form for it, and ``sigma_w^2 = E[c^2] - sigma_g^2``; the correlated variance
 the filter uses is that estimate plus one standard error (``variance_inflation``: a few hundred seconds
 of a process correlated over tens of seconds hold only a few independent samples of it), within the floors
@@ -37,6 +41,9 @@ import math
 
 from sfa.engine import njit  # numba.njit, or the compiled engine (sfa.engine)
 from sfa.layout import (
+    A_AD_D,
+    A_AD_DL,
+    A_AD_DW,
     A_AD_FREEZE,
     A_AD_HI,
     A_AD_HIST,
@@ -49,6 +56,7 @@ from sfa.layout import (
     A_GM_SIG,
     A_GM_TAU,
     A_GW_SIG,
+    A_STILL,
     A_WK_PHT,
     AD_ENTRY,
     AD_HIST,
@@ -57,6 +65,7 @@ from sfa.layout import (
     AD_NMOM,
     AD_TAU_MIN_S,
     K_AD_PRIOR,
+    K_AD_STILL,
     K_AD_TAU_MAX,
     K_AD_WINDOW,
     K_GM_SIGMA,
@@ -113,6 +122,9 @@ def reset(aux, cfg):
         aux[A_AD_M + i] = m
         aux[A_AD_L + i] = lag
         aux[A_AD_W + i] = cfg[K_AD_PRIOR]
+        aux[A_AD_D + i] = 0.0
+        aux[A_AD_DL + i] = lag
+        aux[A_AD_DW + i] = 0.0  # no prior: only standstill pairs inform it
     restart(aux)
 
 
@@ -141,12 +153,24 @@ def _store(aux, b, t, c, ne, nn, s):
     aux[b + 2] = ne
     aux[b + 3] = nn
     aux[b + 4] = s
+    aux[b + 5] = aux[A_STILL]
 
 
 @njit(cache=True, inline="always", _nrt=False, error_model="numpy")
-def _pair(aux, i, c, ne, nn, s, b, t, h, window):
+def _pair(aux, i, c, ne, nn, s, b, t, h, window, still):
     """Moment i from this residual and the entry at aux[b]: c c' / (n . n'), if the two are far enough
-    apart along the track and their normals close enough."""
+    apart along the track and their normals close enough; with ``still`` (gps_fit_standstill, and the
+    standstill detector on now) and the entry stored at a standstill within that distance, the structure
+    function (c - c')^2 / 2 instead (no prior: its weight starts at 0)."""
+    if still and aux[b + 5] != 0.0 and abs(s - aux[b + 4]) < MIN_PAIR_DISTANCE_M:
+        # both at one standstill: the map's offset is the same at both and cancels in the difference
+        dd = 0.5 * (c - aux[b + 1]) ** 2
+        wd = min(aux[A_AD_DW + i] + h, window)
+        a = h / wd
+        aux[A_AD_D + i] += a * (dd - aux[A_AD_D + i])
+        aux[A_AD_DL + i] += a * (t - aux[b] - aux[A_AD_DL + i])
+        aux[A_AD_DW + i] = wd
+        return
     if abs(s - aux[b + 4]) < MIN_PAIR_DISTANCE_M:
         return
     dot = ne * aux[b + 2] + nn * aux[b + 3]
@@ -201,7 +225,11 @@ def fit(aux, cfg):
     sigma_g^2 in closed form for each tau, sigma_w^2 = E[c^2] - sigma_g^2; the correlated variance in
     use is sigma_g^2 times ``variance_inflation`` (its estimate plus one standard error, from the seconds
     of data of the best-observed lag); floors at FLOOR_GM and FLOOR_WHITE times the preset's sigmas,
-    ceilings at CEILING times the mean reported sigma_h."""
+    ceilings at CEILING times the mean reported sigma_h. With standstill moments (``_pair``) the
+    least squares at each tau has two unknowns, sigma_g^2 and the white variance u, from both sets of
+    moments, ``m_i = sigma_g^2 e_i`` and ``D_i = u + sigma_g^2 (1 - e_i)``, each >= 0 (u at its bound 0
+    otherwise); u only shapes the fit: the white variance in use stays E[c^2] - sigma_g^2, the map's
+    offset counted in it, on the safe side."""
     best = math.inf
     best_tau = cfg[K_GM_TAU]
     best_s2 = 0.0
@@ -215,10 +243,40 @@ def fit(aux, cfg):
             num += aux[A_AD_W + i] * aux[A_AD_M + i] * e
             den += aux[A_AD_W + i] * e * e
         s2 = max(num / den, 0.0) if den > 0.0 else 0.0  # argmin over s2 of sum w_i (m_i - s2 e_i)^2
+        u = 0.0
+        vsum = 0.0
+        for i in range(1, AD_NMOM):
+            vsum += aux[A_AD_DW + i]
+        if vsum > 0.0:
+            # with standstill pairs: m_i = s2 e_i and D_i = u + s2 (1 - e_i), u the white variance
+            saa = den
+            sau = 0.0
+            suu = 0.0
+            sam = num
+            sum_ = 0.0
+            for i in range(1, AD_NMOM):
+                v = aux[A_AD_DW + i]
+                f = 1.0 - math.exp(-aux[A_AD_DL + i] / tau)
+                saa += v * f * f
+                sau += v * f
+                suu += v
+                sam += v * f * aux[A_AD_D + i]
+                sum_ += v * aux[A_AD_D + i]
+            det = saa * suu - sau * sau
+            s2j = (sam * suu - sum_ * sau) / det if det > 0.0 else -1.0
+            uj = (saa * sum_ - sau * sam) / det if det > 0.0 else -1.0
+            if s2j >= 0.0 and uj >= 0.0:
+                s2, u = s2j, uj
+            else:  # one at its bound 0: u = 0, s2 from both sets
+                s2, u = max(sam / saa, 0.0), 0.0
         err = 0.0
         for i in range(1, AD_NMOM):
             r = aux[A_AD_M + i] - s2 * math.exp(-aux[A_AD_L + i] / tau)
             err += aux[A_AD_W + i] * r * r
+        if vsum > 0.0:
+            for i in range(1, AD_NMOM):
+                r = aux[A_AD_D + i] - u - s2 * (1.0 - math.exp(-aux[A_AD_DL + i] / tau))
+                err += aux[A_AD_DW + i] * r * r
         if err < best:
             best = err
             best_tau = tau
@@ -250,6 +308,7 @@ def observe(aux, cfg, t, c, ne, nn, s, sigma_h):
     lim = CLIP_SIGMA * math.sqrt(aux[A_AD_M])
     cc = min(max(c, -lim), lim)
     _accumulate(aux, 0, cc * cc, 0.0, h, window)  # E[c^2]
+    still = cfg[K_AD_STILL] != 0.0 and aux[A_STILL] != 0.0
     if math.isfinite(sigma_h) and sigma_h > 0.0:
         aux[A_AD_SH] += (h / aux[A_AD_W]) * (sigma_h - aux[A_AD_SH])  # mean reported sigma_h
     # E[c(t) c(t')] / (n . n'): the cross-track components of an isotropic error, normals apart
@@ -264,7 +323,7 @@ def observe(aux, cfg, t, c, ne, nn, s, sigma_h):
                 d_best = d
                 j_best = j
         if j_best >= 0:
-            _pair(aux, i, cc, ne, nn, s, A_AD_HIST + AD_ENTRY * j_best, t, h, window)
+            _pair(aux, i, cc, ne, nn, s, A_AD_HIST + AD_ENTRY * j_best, t, h, window, still)
     # history: one entry per AD_HIST_SPACING_S (a ring)
     newest = int(aux[A_AD_HI]) - 1
     if newest < 0:

@@ -131,8 +131,13 @@ A_AD_W = A_AD_L + AD_NMOM  #: weights [s]
 #: History of residuals at least AD_HIST_SPACING_S apart: a ring of AD_HIST entries of AD_ENTRY values
 #: (t [s], c [m], normal east, normal north, arc length of the foot [m]); A_AD_HN entries are valid,
 #: the next goes to index A_AD_HI
-AD_ENTRY = 5
-A_AD_HN = A_AD_W + AD_NMOM
+AD_ENTRY = 6
+#: structure function at a standstill, E[(c(t) - c(t - L))^2] / 2 of pairs both at the standstill,
+#: its mean lags and weights (index 0 unused)
+A_AD_D = A_AD_W + AD_NMOM
+A_AD_DL = A_AD_D + AD_NMOM
+A_AD_DW = A_AD_DL + AD_NMOM
+A_AD_HN = A_AD_DW + AD_NMOM
 A_AD_HI = A_AD_HN + 1
 #: 1 while this hypothesis's statistics must not learn: several hypotheses are alive and it is not the
 #: reported one (``gnss_noise.share``, called by TrackFilter and the fast replay before each GNSS fix)

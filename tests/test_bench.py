@@ -133,7 +133,7 @@ def test_c_reference_agrees_with_the_datasheet_configuration(tmp_path):
         pytest.skip("no C compiler on this machine")
     ref = mod.build(tmp_path / "cache")
     db, packed, line = _packed_run(tmp_path)
-    cfg = datasheet_config_for(use_gyro=True).to_array()
+    cfg = datasheet_config_for(use_gyro=True, gps_fit_standstill=True).to_array()
     assert cfg[L.K_AD_WINDOW] > 0.0
     fa, ia, sa = _run(batch.run_packed, packed, line, cfg)
     fb, ib, sb = _run(ref.run_packed, packed, line, cfg)
@@ -142,6 +142,7 @@ def test_c_reference_agrees_with_the_datasheet_configuration(tmp_path):
     np.testing.assert_array_equal(sa[3], sb[3])
     # the model moved off the preset (so the adaptive branches ran), identically in both
     assert sa[2][L.A_GM_TAU] != cfg[L.K_GM_TAU] and sa[2][L.A_AD_W] > cfg[L.K_AD_PRIOR]
+    assert cfg[L.K_AD_STILL] != 0.0 and sa[2][L.A_AD_DW + 1] > 0.0  # the standstill moments ran
     assert cfg[L.K_GYRO_AD_M] > 0.0 and sa[2][L.A_GY_LAM_DEN] > 0.0  # the learned curvature scale ran
     np.testing.assert_array_equal(sb[2][L.A_GM_SIG:L.A_WK_PHT], sa[2][L.A_GM_SIG:L.A_WK_PHT])
     np.testing.assert_array_equal(fb, fa)

@@ -52,6 +52,8 @@ def _all_distinct() -> FilterConfig:
     for k, f in enumerate(fields(base)):
         v = getattr(base, f.name)
         if isinstance(v, bool):
+            if not v:  # a flag off by default is written as 0: on, so that its slot is seen written
+                changes[f.name] = True
             continue
         if isinstance(v, int):
             changes[f.name] = v + 1 + k

@@ -211,3 +211,42 @@ def test_score_dof_are_the_learned_variance_s():
     assert dofs[0] < dofs[-1]
     assert dofs[-1] > 10.0  # 600 s of a process fitted at tens of seconds
     assert G.score_dof(aux, _cfg(gps_score_student_t=False)) == 0.0  # told to score by the normal
+
+
+@pytest.mark.parametrize("sigma_g, tau, sigma_w", [(1.2, 15.0, 0.5), (0.8, 40.0, 0.8)])
+def test_a_standstill_gives_the_short_lags_the_map_cancelling(sigma_g, tau, sigma_w):
+    """At a standstill every pair is at one place, so the 25 m rule keeps them from the moments; with
+    gps_fit_standstill their structure function E[(c - c')^2] / 2 = sigma_w^2 + sigma_g^2 (1 - e^(-L /
+    tau)) is fitted beside them, the map's offset (a constant 0.7 m here) cancelling in the difference.
+    15 minutes standing: with it the receiver's tau and sigma_g are recovered; without it the fit keeps
+    the preset's (120 s) and moves nothing but the lag-0 moment."""
+    c = _receiver(900, 1.0, sigma_g, tau, sigma_w, seed=21) + 0.7
+    fitted = {}
+    for on in (False, True):
+        cfg = _cfg(gps_fit_standstill=on)
+        aux = np.zeros(L.NAUX)
+        G.reset(aux, cfg)
+        aux[L.A_STILL] = 1.0  # the odometer's standstill detector (kernels.odo_update)
+        for k, ck in enumerate(c):
+            G.observe(aux, cfg, 1000.0 + k, float(ck), 0.0, 1.0, 500.0, 2.0)
+        fitted[on] = (_fitted_sigma_g(aux), aux[L.A_GM_TAU], aux[L.A_AD_DW + 1])
+    assert fitted[False][1] == pytest.approx(120.0, rel=0.3) and fitted[False][2] == 0.0
+    sg, tau_hat, weight = fitted[True]
+    assert weight == pytest.approx(600.0)  # the memory, full
+    assert tau / 2.0 <= tau_hat <= tau * 2.0
+    assert sg == pytest.approx(sigma_g, rel=0.3)
+
+
+def test_moving_fixes_leave_the_standstill_moments_alone():
+    """A train that never stands: the structure-function moments stay empty, and the model equals the
+    one fitted without gps_fit_standstill to the bit."""
+    c = _receiver(900, 1.0, 1.2, 15.0, 0.8, seed=5)
+    out = []
+    for on in (False, True):
+        cfg = _cfg(gps_fit_standstill=on)
+        aux = np.zeros(L.NAUX)
+        G.reset(aux, cfg)
+        _feed(aux, cfg, c, 1.0)
+        assert all(aux[L.A_AD_DW + i] == 0.0 for i in range(L.AD_NMOM))
+        out.append(_model(aux))
+    assert out[0] == out[1]

@@ -119,6 +119,9 @@ static void gn_reset(double *aux, const double *cfg) {
         aux[A_AD_M + i] = m;
         aux[A_AD_L + i] = lag;
         aux[A_AD_W + i] = cfg[K_AD_PRIOR];
+        aux[A_AD_D + i] = 0.0;
+        aux[A_AD_DL + i] = lag;
+        aux[A_AD_DW + i] = 0.0;
     }
     gn_restart(aux);
 }
@@ -143,10 +146,41 @@ static void gn_fit(double *aux, const double *cfg) {
             den += aux[A_AD_W + i] * e * e;
         }
         double s2 = den > 0.0 ? gn_max(num / den, 0.0) : 0.0;
+        /* gnss_noise.fit: with standstill pairs, m_i = s2 e_i and D_i = u + s2 (1 - e_i) together */
+        double u = 0.0, vsum = 0.0;
+        for (int i = 1; i < AD_NMOM; i++) vsum += aux[A_AD_DW + i];
+        if (vsum > 0.0) {
+            double saa = den, sau = 0.0, suu = 0.0, sam = num, sum_ = 0.0;
+            for (int i = 1; i < AD_NMOM; i++) {
+                double v = aux[A_AD_DW + i];
+                double f = 1.0 - exp(-aux[A_AD_DL + i] / tau);
+                saa += v * f * f;
+                sau += v * f;
+                suu += v;
+                sam += v * f * aux[A_AD_D + i];
+                sum_ += v * aux[A_AD_D + i];
+            }
+            double det = saa * suu - sau * sau;
+            double s2j = det > 0.0 ? (sam * suu - sum_ * sau) / det : -1.0;
+            double uj = det > 0.0 ? (saa * sum_ - sau * sam) / det : -1.0;
+            if (s2j >= 0.0 && uj >= 0.0) {
+                s2 = s2j;
+                u = uj;
+            } else {
+                s2 = gn_max(sam / saa, 0.0);
+                u = 0.0;
+            }
+        }
         double err = 0.0;
         for (int i = 1; i < AD_NMOM; i++) {
             double r = aux[A_AD_M + i] - s2 * exp(-aux[A_AD_L + i] / tau);
             err += aux[A_AD_W + i] * r * r;
+        }
+        if (vsum > 0.0) {
+            for (int i = 1; i < AD_NMOM; i++) {
+                double r = aux[A_AD_D + i] - u - s2 * (1.0 - exp(-aux[A_AD_DL + i] / tau));
+                err += aux[A_AD_DW + i] * r * r;
+            }
         }
         if (err < best) {
             best = err;
@@ -173,10 +207,22 @@ static void gn_store(double *aux, long b, double t, double c, double ne, double 
     aux[b + 2] = ne;
     aux[b + 3] = nn;
     aux[b + 4] = s;
+    aux[b + 5] = aux[A_STILL];
 }
 
 static void gn_pair(double *aux, int i, double c, double ne, double nn, double s, long b, double t, double h,
-                    double window) {
+                    double window, int still) {
+    if (still && aux[b + 5] != 0.0 && fabs(s - aux[b + 4]) < GN_MIN_PAIR_DISTANCE_M) {
+        /* both at one standstill: the structure function, the map's offset cancelling */
+        double dc = c - aux[b + 1];
+        double dd = 0.5 * (dc * dc);
+        double wd = gn_min(aux[A_AD_DW + i] + h, window);
+        double a = h / wd;
+        aux[A_AD_D + i] += a * (dd - aux[A_AD_D + i]);
+        aux[A_AD_DL + i] += a * (t - aux[b] - aux[A_AD_DL + i]);
+        aux[A_AD_DW + i] = wd;
+        return;
+    }
     if (fabs(s - aux[b + 4]) < GN_MIN_PAIR_DISTANCE_M) return;
     double dot = ne * aux[b + 2] + nn * aux[b + 3];
     if (dot > GN_MIN_NORMAL_DOT) gn_accumulate(aux, i, c * aux[b + 1] / dot, t - aux[b], h, window);
@@ -192,6 +238,7 @@ static void gn_observe(double *aux, const double *cfg, double t, double c, doubl
     double lim = GN_CLIP_SIGMA * sqrt(aux[A_AD_M]);
     double cc = gn_min(gn_max(c, -lim), lim);
     gn_accumulate(aux, 0, cc * cc, 0.0, h, window);
+    int still = cfg[K_AD_STILL] != 0.0 && aux[A_STILL] != 0.0;
     if (isfinite(sigma_h) && sigma_h > 0.0) aux[A_AD_SH] += (h / aux[A_AD_W]) * (sigma_h - aux[A_AD_SH]);
     long n_hist = (long)aux[A_AD_HN];
     for (int i = 1; i < AD_NMOM; i++) {
@@ -205,7 +252,7 @@ static void gn_observe(double *aux, const double *cfg, double t, double c, doubl
                 j_best = j;
             }
         }
-        if (j_best >= 0) gn_pair(aux, i, cc, ne, nn, s, A_AD_HIST + AD_ENTRY * j_best, t, h, window);
+        if (j_best >= 0) gn_pair(aux, i, cc, ne, nn, s, A_AD_HIST + AD_ENTRY * j_best, t, h, window, still);
     }
     long newest = (long)aux[A_AD_HI] - 1;
     if (newest < 0) newest = AD_HIST - 1;
