@@ -227,9 +227,9 @@ def fit(aux, cfg):
     of data of the best-observed lag); floors at FLOOR_GM and FLOOR_WHITE times the preset's sigmas,
     ceilings at CEILING times the mean reported sigma_h. With standstill moments (``_pair``) the
     least squares at each tau has two unknowns, sigma_g^2 and the white variance u, from both sets of
-    moments, ``m_i = sigma_g^2 e_i`` and ``D_i = u + sigma_g^2 (1 - e_i)``, each >= 0 (u at its bound 0
-    otherwise); u only shapes the fit: the white variance in use stays E[c^2] - sigma_g^2, the map's
-    offset counted in it, on the safe side."""
+    moments, ``m_i = sigma_g^2 e_i`` and ``D_i = u + sigma_g^2 (1 - e_i)``, both >= 0 (otherwise u = 0
+    and sigma_g^2 from both sets); u only shapes the fit: the white variance in use stays
+    E[c^2] - sigma_g^2, the map's offset counted in it, on the safe side."""
     best = math.inf
     best_tau = cfg[K_GM_TAU]
     best_s2 = 0.0
@@ -267,7 +267,7 @@ def fit(aux, cfg):
             uj = (saa * sum_ - sau * sam) / det if det > 0.0 else -1.0
             if s2j >= 0.0 and uj >= 0.0:
                 s2, u = s2j, uj
-            else:  # one at its bound 0: u = 0, s2 from both sets
+            else:  # otherwise u = 0 and s2 from both sets (the correlated part is the one kept)
                 s2, u = max(sam / saa, 0.0), 0.0
         err = 0.0
         for i in range(1, AD_NMOM):

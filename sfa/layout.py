@@ -129,8 +129,8 @@ A_AD_M = 73  #: moments [m^2]
 A_AD_L = A_AD_M + AD_NMOM  #: mean lags [s]
 A_AD_W = A_AD_L + AD_NMOM  #: weights [s]
 #: History of residuals at least AD_HIST_SPACING_S apart: a ring of AD_HIST entries of AD_ENTRY values
-#: (t [s], c [m], normal east, normal north, arc length of the foot [m]); A_AD_HN entries are valid,
-#: the next goes to index A_AD_HI
+#: (t [s], c [m], normal east, normal north, arc length of the foot [m], A_STILL when stored);
+#: A_AD_HN entries are valid, the next goes to index A_AD_HI
 AD_ENTRY = 6
 #: structure function at a standstill, E[(c(t) - c(t - L))^2] / 2 of pairs both at the standstill,
 #: its mean lags and weights (index 0 unused)

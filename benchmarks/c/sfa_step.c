@@ -166,7 +166,7 @@ static void gn_fit(double *aux, const double *cfg) {
             if (s2j >= 0.0 && uj >= 0.0) {
                 s2 = s2j;
                 u = uj;
-            } else {
+            } else { /* otherwise u = 0 and s2 from both sets */
                 s2 = gn_max(sam / saa, 0.0);
                 u = 0.0;
             }
