@@ -136,13 +136,15 @@ def restart(aux):
 
 
 @njit(cache=True, inline="always", _nrt=False, error_model="numpy")
-def _accumulate(aux, i, value, lag, h, window):
-    """Weighted mean with growing, then capped, memory: W = min(W + h, window), m += (h / W)(value - m)."""
-    w = min(aux[A_AD_W + i] + h, window)
+def _accumulate(aux, base, i, value, lag, h, window):
+    """Weighted mean with growing, then capped, memory: W = min(W + h, window), m += (h / W)(value - m).
+    ``base``: the set of moments, A_AD_M (products) or A_AD_D (standstill structure function), each
+    followed by its mean lags and its weights AD_NMOM slots apart."""
+    w = min(aux[base + 2 * AD_NMOM + i] + h, window)
     a = h / w
-    aux[A_AD_M + i] += a * (value - aux[A_AD_M + i])
-    aux[A_AD_L + i] += a * (lag - aux[A_AD_L + i])
-    aux[A_AD_W + i] = w
+    aux[base + i] += a * (value - aux[base + i])
+    aux[base + AD_NMOM + i] += a * (lag - aux[base + AD_NMOM + i])
+    aux[base + 2 * AD_NMOM + i] = w
 
 
 @njit(cache=True, inline="always", _nrt=False, error_model="numpy")
@@ -164,18 +166,13 @@ def _pair(aux, i, c, ne, nn, s, b, t, h, window, still):
     function (c - c')^2 / 2 instead (no prior: its weight starts at 0)."""
     if still and aux[b + 5] != 0.0 and abs(s - aux[b + 4]) < MIN_PAIR_DISTANCE_M:
         # both at one standstill: the map's offset is the same at both and cancels in the difference
-        dd = 0.5 * (c - aux[b + 1]) ** 2
-        wd = min(aux[A_AD_DW + i] + h, window)
-        a = h / wd
-        aux[A_AD_D + i] += a * (dd - aux[A_AD_D + i])
-        aux[A_AD_DL + i] += a * (t - aux[b] - aux[A_AD_DL + i])
-        aux[A_AD_DW + i] = wd
+        _accumulate(aux, A_AD_D, i, 0.5 * (c - aux[b + 1]) ** 2, t - aux[b], h, window)
         return
     if abs(s - aux[b + 4]) < MIN_PAIR_DISTANCE_M:
         return
     dot = ne * aux[b + 2] + nn * aux[b + 3]
     if dot > MIN_NORMAL_DOT:
-        _accumulate(aux, i, c * aux[b + 1] / dot, t - aux[b], h, window)
+        _accumulate(aux, A_AD_M, i, c * aux[b + 1] / dot, t - aux[b], h, window)
 
 
 @njit(cache=True, inline="always", _nrt=False, error_model="numpy")
@@ -234,6 +231,9 @@ def fit(aux, cfg):
     best_tau = cfg[K_GM_TAU]
     best_s2 = 0.0
     step = (math.log(cfg[K_AD_TAU_MAX]) - math.log(TAU_MIN_S)) / (TAU_N - 1)
+    vsum = 0.0  # seconds of standstill data (gps_fit_standstill), the same at every tau
+    for i in range(1, AD_NMOM):
+        vsum += aux[A_AD_DW + i]
     for g in range(TAU_N):
         tau = math.exp(math.log(TAU_MIN_S) + g * step)
         num = 0.0
@@ -244,9 +244,6 @@ def fit(aux, cfg):
             den += aux[A_AD_W + i] * e * e
         s2 = max(num / den, 0.0) if den > 0.0 else 0.0  # argmin over s2 of sum w_i (m_i - s2 e_i)^2
         u = 0.0
-        vsum = 0.0
-        for i in range(1, AD_NMOM):
-            vsum += aux[A_AD_DW + i]
         if vsum > 0.0:
             # with standstill pairs: m_i = s2 e_i and D_i = u + s2 (1 - e_i), u the white variance
             saa = den
@@ -307,7 +304,7 @@ def observe(aux, cfg, t, c, ne, nn, s, sigma_h):
     aux[A_AD_T] = t
     lim = CLIP_SIGMA * math.sqrt(aux[A_AD_M])
     cc = min(max(c, -lim), lim)
-    _accumulate(aux, 0, cc * cc, 0.0, h, window)  # E[c^2]
+    _accumulate(aux, A_AD_M, 0, cc * cc, 0.0, h, window)  # E[c^2]
     still = cfg[K_AD_STILL] != 0.0 and aux[A_STILL] != 0.0
     if math.isfinite(sigma_h) and sigma_h > 0.0:
         aux[A_AD_SH] += (h / aux[A_AD_W]) * (sigma_h - aux[A_AD_SH])  # mean reported sigma_h

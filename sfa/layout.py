@@ -133,7 +133,8 @@ A_AD_W = A_AD_L + AD_NMOM  #: weights [s]
 #: A_AD_HN entries are valid, the next goes to index A_AD_HI
 AD_ENTRY = 6
 #: structure function at a standstill, E[(c(t) - c(t - L))^2] / 2 of pairs both at the standstill,
-#: its mean lags and weights (index 0 unused)
+#: its mean lags and weights (index 0 unused); like A_AD_M, A_AD_L, A_AD_W each set AD_NMOM apart
+#: (gnss_noise._accumulate addresses a set by its first slot)
 A_AD_D = A_AD_W + AD_NMOM
 A_AD_DL = A_AD_D + AD_NMOM
 A_AD_DW = A_AD_DL + AD_NMOM

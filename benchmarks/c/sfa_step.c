@@ -126,17 +126,20 @@ static void gn_reset(double *aux, const double *cfg) {
     gn_restart(aux);
 }
 
-static void gn_accumulate(double *aux, int i, double value, double lag, double h, double window) {
-    double w = gn_min(aux[A_AD_W + i] + h, window);
+/* base: A_AD_M (products) or A_AD_D (standstill structure function), lags and weights AD_NMOM apart */
+static void gn_accumulate(double *aux, long base, int i, double value, double lag, double h, double window) {
+    double w = gn_min(aux[base + 2 * AD_NMOM + i] + h, window);
     double a = h / w;
-    aux[A_AD_M + i] += a * (value - aux[A_AD_M + i]);
-    aux[A_AD_L + i] += a * (lag - aux[A_AD_L + i]);
-    aux[A_AD_W + i] = w;
+    aux[base + i] += a * (value - aux[base + i]);
+    aux[base + AD_NMOM + i] += a * (lag - aux[base + AD_NMOM + i]);
+    aux[base + 2 * AD_NMOM + i] = w;
 }
 
 static void gn_fit(double *aux, const double *cfg) {
     double best = INFINITY, best_tau = cfg[K_GM_TAU], best_s2 = 0.0;
     double step = (log(cfg[K_AD_TAU_MAX]) - log(GN_TAU_MIN_S)) / (GN_TAU_N - 1);
+    double vsum = 0.0; /* seconds of standstill data, the same at every tau */
+    for (int i = 1; i < AD_NMOM; i++) vsum += aux[A_AD_DW + i];
     for (int g = 0; g < GN_TAU_N; g++) {
         double tau = exp(log(GN_TAU_MIN_S) + g * step);
         double num = 0.0, den = 0.0;
@@ -147,8 +150,7 @@ static void gn_fit(double *aux, const double *cfg) {
         }
         double s2 = den > 0.0 ? gn_max(num / den, 0.0) : 0.0;
         /* gnss_noise.fit: with standstill pairs, m_i = s2 e_i and D_i = u + s2 (1 - e_i) together */
-        double u = 0.0, vsum = 0.0;
-        for (int i = 1; i < AD_NMOM; i++) vsum += aux[A_AD_DW + i];
+        double u = 0.0;
         if (vsum > 0.0) {
             double saa = den, sau = 0.0, suu = 0.0, sam = num, sum_ = 0.0;
             for (int i = 1; i < AD_NMOM; i++) {
@@ -215,17 +217,12 @@ static void gn_pair(double *aux, int i, double c, double ne, double nn, double s
     if (still && aux[b + 5] != 0.0 && fabs(s - aux[b + 4]) < GN_MIN_PAIR_DISTANCE_M) {
         /* both at one standstill: the structure function, the map's offset cancelling */
         double dc = c - aux[b + 1];
-        double dd = 0.5 * (dc * dc);
-        double wd = gn_min(aux[A_AD_DW + i] + h, window);
-        double a = h / wd;
-        aux[A_AD_D + i] += a * (dd - aux[A_AD_D + i]);
-        aux[A_AD_DL + i] += a * (t - aux[b] - aux[A_AD_DL + i]);
-        aux[A_AD_DW + i] = wd;
+        gn_accumulate(aux, A_AD_D, i, 0.5 * (dc * dc), t - aux[b], h, window);
         return;
     }
     if (fabs(s - aux[b + 4]) < GN_MIN_PAIR_DISTANCE_M) return;
     double dot = ne * aux[b + 2] + nn * aux[b + 3];
-    if (dot > GN_MIN_NORMAL_DOT) gn_accumulate(aux, i, c * aux[b + 1] / dot, t - aux[b], h, window);
+    if (dot > GN_MIN_NORMAL_DOT) gn_accumulate(aux, A_AD_M, i, c * aux[b + 1] / dot, t - aux[b], h, window);
 }
 
 static void gn_observe(double *aux, const double *cfg, double t, double c, double ne, double nn, double s,
@@ -237,7 +234,7 @@ static void gn_observe(double *aux, const double *cfg, double t, double c, doubl
     aux[A_AD_T] = t;
     double lim = GN_CLIP_SIGMA * sqrt(aux[A_AD_M]);
     double cc = gn_min(gn_max(c, -lim), lim);
-    gn_accumulate(aux, 0, cc * cc, 0.0, h, window);
+    gn_accumulate(aux, A_AD_M, 0, cc * cc, 0.0, h, window);
     int still = cfg[K_AD_STILL] != 0.0 && aux[A_STILL] != 0.0;
     if (isfinite(sigma_h) && sigma_h > 0.0) aux[A_AD_SH] += (h / aux[A_AD_W]) * (sigma_h - aux[A_AD_SH]);
     long n_hist = (long)aux[A_AD_HN];
