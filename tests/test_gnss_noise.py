@@ -252,6 +252,24 @@ def test_moving_fixes_leave_the_standstill_moments_alone():
     assert out[0] == out[1]
 
 
+
+def _slow_train_under_a_pessimistic_preset():
+    """300 fixes of a 0.6 m / 25 s / 0.4 m receiver under a 1.5 m / 30 s / 1 m preset, at 6 m/s (12 m in
+    2 s: the shortest lag is never 25 m apart)."""
+    cfg = _cfg(gps_gm_sigma_m=1.5, gps_gm_tau_s=30.0, gps_white_sigma_m=1.0)
+    aux = np.zeros(L.NAUX)
+    G.reset(aux, cfg)
+    _feed(aux, cfg, _receiver(300, 1.0, 0.6, 25.0, 0.4, seed=5), 1.0, speed_mps=6.0)
+    return aux, cfg
+
+
+def test_a_slow_train_observes_every_lag_but_the_shortest():
+    """The setting of the xfail below: lag 2 s keeps only its prior's weight, lag 5 s (30 m) is observed."""
+    aux, cfg = _slow_train_under_a_pessimistic_preset()
+    assert aux[L.A_AD_W + 1] == cfg[L.K_AD_PRIOR]
+    assert aux[L.A_AD_W + 2] > 10.0 * cfg[L.K_AD_PRIOR]
+
+
 @pytest.mark.xfail(strict=True, reason="known defect, issue 16 (docs/filter.md, Session 33): a lag never "
                    "observed keeps the preset's absolute moment and pulls tau to a few seconds")
 def test_a_lag_never_observed_does_not_decide_the_correlation_time():
@@ -260,11 +278,5 @@ def test_a_lag_never_observed_does_not_decide_the_correlation_time():
     observed flat lags and the fit picks a correlation time of a few seconds (2.37 s here for a 25 s
     process; odo-scale seed 10: 2.4 s for 24 s, its interval too narrow). Strict: when a fix lands this
     passes and the marker must go."""
-    cfg = _cfg(gps_gm_sigma_m=1.5, gps_gm_tau_s=30.0, gps_white_sigma_m=1.0)
-    aux = np.zeros(L.NAUX)
-    G.reset(aux, cfg)
-    tau = 25.0
-    _feed(aux, cfg, _receiver(300, 1.0, 0.6, tau, 0.4, seed=5), 1.0, speed_mps=6.0)  # 12 m in 2 s
-    assert aux[L.A_AD_W + 1] == cfg[L.K_AD_PRIOR]  # lag 2 s: no pair 25 m apart, only its prior
-    assert aux[L.A_AD_W + 2] > 10.0 * cfg[L.K_AD_PRIOR]  # lag 5 s (30 m): observed
-    assert tau / 2.0 <= aux[L.A_GM_TAU] <= tau * 2.0
+    aux, _ = _slow_train_under_a_pessimistic_preset()
+    assert 12.5 <= aux[L.A_GM_TAU] <= 50.0  # within a factor 2 of the receiver's 25 s
