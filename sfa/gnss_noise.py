@@ -31,8 +31,12 @@ of a process correlated over tens of seconds hold only a few independent samples
 (CEILING times the mean reported sigma_h). With several hypotheses alive, ``share`` gives them the
 reported one's model and lets only that one learn.
 
+With ``gps_adaptive_ml`` the model is instead the maximum-likelihood point of a bank of scalar Kalman
+filters of the same residual over a (tau, white share) grid (``ml_update``; docs/filter.md, "Adaptive
+GNSS error model"); off in the presets.
+
 With ``gps_adaptive_window_s = 0`` the preset's model is used unchanged and these functions only
-copy it into ``aux``. Slots: ``sfa.layout`` (A_GM_SIG .. A_AD_HIST).
+copy it into ``aux``. Slots: ``sfa.layout`` (A_GM_SIG .. A_AD_HIST, A_ML_T .. A_ML_B).
 """
 
 from __future__ import annotations
@@ -56,14 +60,23 @@ from sfa.layout import (
     A_GM_SIG,
     A_GM_TAU,
     A_GW_SIG,
+    A_ML_A,
+    A_ML_B,
+    A_ML_N,
+    A_ML_P,
+    A_ML_T,
+    A_ML_X,
     A_STILL,
     A_WK_PHT,
     AD_ENTRY,
     AD_HIST,
     AD_HIST_SPACING_S,
     AD_LAGS_S,
+    AD_ML_R,
+    AD_ML_TAU_N,
     AD_NMOM,
     AD_TAU_MIN_S,
+    K_AD_ML,
     K_AD_PRIOR,
     K_AD_STILL,
     K_AD_TAU_MAX,
@@ -92,7 +105,8 @@ CEILING = 4.0
 #: the correlation-time grid: TAU_N values, logarithmic from TAU_MIN_S to the configuration's
 #: gps_adaptive_tau_max_s (K_AD_TAU_MAX)
 TAU_MIN_S = AD_TAU_MIN_S
-TAU_N = 25
+TAU_N = AD_ML_TAU_N
+NR = len(AD_ML_R)  #: white shares of the maximum-likelihood grid
 
 
 @njit(cache=True, inline="always", _nrt=False, error_model="numpy")
@@ -125,7 +139,57 @@ def reset(aux, cfg):
         aux[A_AD_D + i] = 0.0
         aux[A_AD_DL + i] = lag
         aux[A_AD_DW + i] = 0.0  # no prior: only standstill pairs inform it
+    if cfg[K_AD_ML] != 0.0:
+        ml_reset(aux, cfg)
     restart(aux)
+
+
+@njit(cache=True, _nrt=False, error_model="numpy")
+def ml_reset(aux, cfg):
+    """The maximum-likelihood bank's prior: gps_adaptive_prior_s seconds of the preset's receiver at
+    1 Hz, each point's sums their expected values (_ml_expected), as the moments start from the
+    preset's with that weight."""
+    sg = cfg[K_GM_SIGMA]
+    tau = cfg[K_GM_TAU]
+    sw = cfg[K_GPS_WHITE]
+    k_prior = cfg[K_AD_PRIOR]
+    aux[A_ML_T] = math.nan
+    aux[A_ML_N] = k_prior
+    step = (math.log(cfg[K_AD_TAU_MAX]) - math.log(TAU_MIN_S)) / (TAU_N - 1)
+    for g in range(TAU_N):
+        tau_g = math.exp(math.log(TAU_MIN_S) + g * step)
+        for k in range(NR):
+            j = g * NR + k
+            aux[A_ML_X + j] = 0.0
+            aux[A_ML_P + j] = 1.0 - AD_ML_R[k]  # the correlated error's share of the unit total variance
+            e_nu2, log_s = _ml_expected(sg * sg, tau, sw * sw, tau_g, AD_ML_R[k])
+            aux[A_ML_A + j] = k_prior * e_nu2
+            aux[A_ML_B + j] = k_prior * log_s
+
+
+@njit(cache=True, _nrt=False, error_model="numpy")
+def _ml_expected(q0, tau0, w0, tau, r):
+    """The steady-state filter of grid point (tau, r) (unit scale) run on fixes 1 s apart from a
+    receiver with correlated variance q0 [m^2], correlation time tau0 [s] and white variance w0 [m^2]:
+    E[nu^2 / S] [m^2] and log S, in closed form. The filter's predicted variance P- is the positive
+    root of its Riccati equation; E[nu^2] follows from the stationary covariance of (g, x), the
+    receiver's error and the filter's prediction-corrected estimate of it."""
+    phi = math.exp(-1.0 / tau)
+    q = (1.0 - r) * (1.0 - phi * phi)  # the filter's process noise per step
+    # P- = phi^2 P- r / (P- + r) + q:  P-^2 + b P- - q r = 0, b = r (1 - phi^2) - q
+    b = r * (1.0 - phi * phi) - q
+    root = math.sqrt(b * b + 4.0 * q * r)
+    pm = 2.0 * q * r / (b + root) if b >= 0.0 else 0.5 * (root - b)
+    sv = pm + r  # S = P- + R
+    kg = pm / sv  # K = P- / S
+    p0 = math.exp(-1.0 / tau0)
+    a = (1.0 - kg) * phi  # x' = a x + K (p0 g + eta + w): the estimate's own recursion
+    # stationary E[g x] and E[x^2] (E[g^2] = q0): the Lyapunov equation of (g, x), solved
+    sgx = kg * q0 / (1.0 - p0 * a)
+    sxx = (kg * kg * (q0 + w0) + 2.0 * kg * p0 * a * sgx) / (1.0 - a * a)
+    # nu = z - phi x_prev = p0 g_prev + eta + w - phi x_prev, with E[(p0 g + eta)^2] = q0
+    e_nu2 = q0 + w0 - 2.0 * p0 * phi * sgx + phi * phi * sxx
+    return e_nu2 / sv, math.log(sv)
 
 
 @njit(cache=True, _nrt=False, error_model="numpy")
@@ -280,12 +344,74 @@ def fit(aux, cfg):
             best_s2 = s2
     m0 = aux[A_AD_M]
     s2 = min(best_s2, m0)
+    _use(aux, cfg, s2, best_tau, max(m0 - s2, 0.0))
+
+
+@njit(cache=True, inline="always", _nrt=False, error_model="numpy")
+def _use(aux, cfg, s2, tau, w2):
+    """The model in use from an estimate: correlated variance s2 [m^2] with correlation time tau [s],
+    white variance w2 [m^2]: the correlated one plus one standard error (variance_inflation), within the
+    floors (FLOOR_GM, FLOOR_WHITE times the preset's) and the ceiling (CEILING times the mean sigma_h)."""
     top = CEILING * aux[A_AD_SH]
-    # the correlated variance used: the fitted one plus one standard error, the white one as fitted
-    sg = math.sqrt(s2 * variance_inflation(best_tau, seconds_of_data(aux)))
+    sg = math.sqrt(s2 * variance_inflation(tau, seconds_of_data(aux)))
     aux[A_GM_SIG] = max(min(sg, top), FLOOR_GM * cfg[K_GM_SIGMA])
-    aux[A_GM_TAU] = best_tau
-    aux[A_GW_SIG] = max(min(math.sqrt(max(m0 - s2, 0.0)), top), FLOOR_WHITE * cfg[K_GPS_WHITE])
+    aux[A_GM_TAU] = tau
+    aux[A_GW_SIG] = max(min(math.sqrt(w2), top), FLOOR_WHITE * cfg[K_GPS_WHITE])
+
+
+@njit(cache=True, _nrt=False, error_model="numpy")
+def ml_update(aux, cfg, t, c, h, still):
+    """One cross-track residual c [m] at time t [s], standing for h seconds of data, into the
+    maximum-likelihood bank (``gps_adaptive_ml``), then the model in use from its best point.
+
+    The residual is modelled as c = sigma (g + w): g first-order Gauss-Markov with variance 1 - r and
+    correlation time tau, w white with variance r, sigma the scale. Each grid point (tau, r) runs the
+    scalar Kalman filter of that model with sigma = 1 and keeps the forgetting sums (memory
+    gps_adaptive_window_s) of nu^2 / S and log S over its innovations nu and their variances S, and the
+    count N: the scale's maximum-likelihood estimate is then sigma^2 = sum(nu^2 / S) / N, and the
+    log-likelihood profiled over it -(N log sigma^2 + sum log S) / 2. Unlike the moments' least squares,
+    this weighs every lag the data hold by what it says, counts the residuals' correlation, and needs no
+    pair 25 m apart: a slow train informs it as well as a fast one. A residual at a standstill (``still``)
+    is left out: the map's lateral offset there is constant and would pass for a GNSS error that never
+    decorrelates; the filters predict across the stop. The sums start from the preset's expected
+    values over gps_adaptive_prior_s fixes (ml_reset), as the moments start from the preset's."""
+    window = cfg[K_AD_WINDOW]
+    if still:
+        return
+    dt = 1.0 if math.isnan(aux[A_ML_T]) else max(t - aux[A_ML_T], 0.0)
+    aux[A_ML_T] = t
+    lam = math.exp(-h / window)  # forgetting: a memory of gps_adaptive_window_s seconds of data
+    aux[A_ML_N] = lam * aux[A_ML_N] + 1.0
+    step = (math.log(cfg[K_AD_TAU_MAX]) - math.log(TAU_MIN_S)) / (TAU_N - 1)
+    best = -math.inf
+    best_j = -1
+    n = aux[A_ML_N]
+    for g in range(TAU_N):
+        tau = math.exp(math.log(TAU_MIN_S) + g * step)
+        phi = math.exp(-dt / tau)
+        for k in range(NR):
+            j = g * NR + k
+            r = AD_ML_R[k]
+            x = phi * aux[A_ML_X + j]  # x = phi x
+            p = phi * phi * aux[A_ML_P + j] + (1.0 - r) * (1.0 - phi * phi)  # P = phi^2 P + q (1 - phi^2)
+            sv = p + r  # S = P + R
+            nu = c - x  # innovation
+            aux[A_ML_A + j] = lam * aux[A_ML_A + j] + nu * nu / sv
+            aux[A_ML_B + j] = lam * aux[A_ML_B + j] + math.log(sv)
+            kg = p / sv  # K = P / S
+            aux[A_ML_X + j] = x + kg * nu  # x += K nu
+            aux[A_ML_P + j] = p * r / sv  # P = (1 - K) P
+            ll = -(n * math.log(max(aux[A_ML_A + j] / n, 1e-300)) + aux[A_ML_B + j])  # 2 x profile log-lik.
+            if ll > best:
+                best = ll
+                best_j = j
+    if best_j < 0:
+        return  # no point scored (not a number): the model in use stays
+    g = best_j // NR
+    r = AD_ML_R[best_j - g * NR]
+    tau = math.exp(math.log(TAU_MIN_S) + g * step)
+    var = aux[A_ML_A + best_j] / n  # the scale's estimate: sigma^2 = sum(nu^2 / S) / N
+    _use(aux, cfg, (1.0 - r) * var, tau, r * var)
 
 
 @njit(cache=True, _nrt=False, error_model="numpy")
@@ -329,7 +455,10 @@ def observe(aux, cfg, t, c, ne, nn, s, sigma_h):
         _store(aux, A_AD_HIST + AD_ENTRY * int(aux[A_AD_HI]), t, cc, ne, nn, s)
         aux[A_AD_HI] = float((int(aux[A_AD_HI]) + 1) % AD_HIST)
         aux[A_AD_HN] = float(min(n_hist + 1, AD_HIST))
-    fit(aux, cfg)
+    if cfg[K_AD_ML] != 0.0:
+        ml_update(aux, cfg, t, cc, h, aux[A_STILL] != 0.0)
+    else:
+        fit(aux, cfg)
 
 
 @njit(cache=True, _nrt=False, error_model="numpy")

@@ -149,11 +149,24 @@ AD_HIST_SPACING_S = 1.0  #: spacing of the history entries [s]
 #: start of the correlation-time grid the model is fitted over (its top: FilterConfig
 #: gps_adaptive_tau_max_s) [s]
 AD_TAU_MIN_S = 1.0
+#: Maximum-likelihood GNSS error model (``gps_adaptive_ml``; sfa.gnss_noise.ml_update): a bank of
+#: scalar Kalman filters of the cross-track residual, one per grid point (AD_ML_R white shares of the
+#: total variance x the TAU_N correlation times of the moment fit's grid, tau-major), each with unit
+#: total variance; per point its state and variance, and the forgetting sums of nu^2 / S and log S
+AD_ML_R = (0.02, 0.1, 0.2, 0.35, 0.5, 0.65, 0.8, 0.92)
+AD_ML_TAU_N = 25  #: correlation times of the grid (gnss_noise.TAU_N: the same grid)
+AD_ML_NG = AD_ML_TAU_N * len(AD_ML_R)
+A_ML_T = A_AD_HIST + AD_ENTRY * AD_HIST  #: time of the last residual in the bank [s] (NaN: none)
+A_ML_N = A_ML_T + 1  #: forgetting count of residuals (the prior's counted as its seconds at 1 Hz) [-]
+A_ML_X = A_ML_T + 2  #: per point: the correlated error's estimate [unit]
+A_ML_P = A_ML_X + AD_ML_NG  #: its variance [unit^2]
+A_ML_A = A_ML_P + AD_ML_NG  #: forgetting sum of nu^2 / S [m^2]
+A_ML_B = A_ML_A + AD_ML_NG  #: forgetting sum of log S [-]
 #: Scale of the curvature-model variance (>= 1), learned from the gyro innovations when K_GYRO_AD_M > 0
 #: (docs/filter.md, "Curvature error"): like the GNSS model, one value for every hypothesis, the
 #: reported one's (it lies inside gnss_noise.share's range, and the bank copies it to the others before
 #: each IMU sample), so that a wrong hypothesis cannot widen its own model until it fits
-A_GY_LAM = A_AD_HIST + AD_ENTRY * AD_HIST
+A_GY_LAM = A_ML_B + AD_ML_NG
 #: its weighted least-squares estimate over the windows, numerator and denominator, each an EWMA:
 #: sum(rc0 a / s0^2) and sum(rc0^2 / s0^2) (sfa.kernels.gyro_window_update), so that a window whose
 #: modelled curvature error is small next to the gyro's own noise barely moves it

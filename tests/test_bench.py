@@ -149,6 +149,27 @@ def test_c_reference_agrees_with_the_datasheet_configuration(tmp_path):
     np.testing.assert_array_equal(sb[1], sa[1])
 
 
+def test_c_reference_agrees_with_the_maximum_likelihood_gnss_model(tmp_path):
+    """The datasheet presets with the GNSS error model estimated by the maximum-likelihood bank
+    (gps_adaptive_ml): its prior from the preset's expected statistics, and every point's filter."""
+    mod = _cref()
+    if mod.find_compiler() is None:
+        pytest.skip("no C compiler on this machine")
+    ref = mod.build(tmp_path / "cache")
+    db, packed, line = _packed_run(tmp_path)
+    cfg = datasheet_config_for(gps_adaptive_ml=True).to_array()
+    fa, ia, sa = _run(batch.run_packed, packed, line, cfg)
+    fb, ib, sb = _run(ref.run_packed, packed, line, cfg)
+    db.close()
+    np.testing.assert_array_equal(ia, ib)
+    np.testing.assert_array_equal(sa[3], sb[3])
+    # the bank took fixes and moved the model off the preset, identically in both
+    assert sa[2][L.A_ML_N] > 2.0 * cfg[L.K_AD_PRIOR] and sa[2][L.A_GM_TAU] != cfg[L.K_GM_TAU]
+    np.testing.assert_array_equal(sb[2][L.A_GM_SIG:L.A_WK_PHT], sa[2][L.A_GM_SIG:L.A_WK_PHT])
+    np.testing.assert_array_equal(fb, fa)
+    np.testing.assert_array_equal(sb[1], sa[1])
+
+
 def test_c_reference_agrees_through_sensor_faults(tmp_path):
     """Slip (rewind), a 0.3 m/s^2 accelerometer bias step (a slip that GNSS arbitrates: re-anchor,
     accelerometer declared faulty) and a stuck IMU: the fault-handling branches of the C

@@ -75,7 +75,7 @@ def layout_header() -> str:
 
     # the adaptive GNSS model's constants, written with repr (the same doubles), prefixed GN_
     for name in ("LAG_TOL_S", "MIN_NORMAL_DOT", "MIN_PAIR_DISTANCE_M", "CLIP_SIGMA", "FLOOR_GM",
-                 "FLOOR_WHITE", "CEILING", "TAU_MIN_S", "TAU_N"):
+                 "FLOOR_WHITE", "CEILING", "TAU_MIN_S", "TAU_N", "NR"):
         lines.append(f"#define GN_{name} {getattr(gnss_noise, name)!r}")
     from sfa.kernels import (
         COS_MAX_ROLL,

@@ -105,6 +105,27 @@ static void gn_restart(double *aux) {
     aux[A_AD_HI] = 0.0;
 }
 
+/* gnss_noise._ml_expected: E[nu^2 / S] and log S of grid point (tau, r) on the preset's receiver */
+static void gn_ml_expected(double q0, double tau0, double w0, double tau, double r, double *e_out,
+                           double *log_s) {
+    double phi = exp(-1.0 / tau);
+    double q = (1.0 - r) * (1.0 - phi * phi);
+    double b = r * (1.0 - phi * phi) - q;
+    double root = sqrt(b * b + 4.0 * q * r);
+    double pm = b >= 0.0 ? 2.0 * q * r / (b + root) : 0.5 * (root - b);
+    double sv = pm + r;
+    double kg = pm / sv;
+    double p0 = exp(-1.0 / tau0);
+    double a = (1.0 - kg) * phi;
+    double sgx = kg * q0 / (1.0 - p0 * a);
+    double sxx = (kg * kg * (q0 + w0) + 2.0 * kg * p0 * a * sgx) / (1.0 - a * a);
+    double e_nu2 = q0 + w0 - 2.0 * p0 * phi * sgx + phi * phi * sxx;
+    *e_out = e_nu2 / sv;
+    *log_s = log(sv);
+}
+
+static void gn_ml_reset(double *aux, const double *cfg);
+
 static void gn_reset(double *aux, const double *cfg) {
     double sg = cfg[K_GM_SIGMA], tau = cfg[K_GM_TAU], sw = cfg[K_GPS_WHITE];
     aux[A_GM_SIG] = sg;
@@ -123,7 +144,29 @@ static void gn_reset(double *aux, const double *cfg) {
         aux[A_AD_DL + i] = lag;
         aux[A_AD_DW + i] = 0.0;
     }
+    if (cfg[K_AD_ML] != 0.0) gn_ml_reset(aux, cfg);
     gn_restart(aux);
+}
+
+/* gnss_noise.ml_reset: the bank starts from K seconds of the preset's receiver at 1 Hz */
+static void gn_ml_reset(double *aux, const double *cfg) {
+    double sg = cfg[K_GM_SIGMA], tau = cfg[K_GM_TAU], sw = cfg[K_GPS_WHITE];
+    double k_prior = cfg[K_AD_PRIOR];
+    aux[A_ML_T] = NAN;
+    aux[A_ML_N] = k_prior;
+    double step = (log(cfg[K_AD_TAU_MAX]) - log(GN_TAU_MIN_S)) / (GN_TAU_N - 1);
+    for (int g = 0; g < GN_TAU_N; g++) {
+        double tau_g = exp(log(GN_TAU_MIN_S) + g * step);
+        for (int k = 0; k < GN_NR; k++) {
+            long j = (long)g * GN_NR + k;
+            double e_nu2, log_s;
+            aux[A_ML_X + j] = 0.0;
+            aux[A_ML_P + j] = 1.0 - AD_ML_R[k];
+            gn_ml_expected(sg * sg, tau, sw * sw, tau_g, AD_ML_R[k], &e_nu2, &log_s);
+            aux[A_ML_A + j] = k_prior * e_nu2;
+            aux[A_ML_B + j] = k_prior * log_s;
+        }
+    }
 }
 
 /* base: A_AD_M (products) or A_AD_D (standstill structure function), lags and weights AD_NMOM apart */
@@ -133,6 +176,17 @@ static void gn_accumulate(double *aux, long base, int i, double value, double la
     aux[base + i] += a * (value - aux[base + i]);
     aux[base + AD_NMOM + i] += a * (lag - aux[base + AD_NMOM + i]);
     aux[base + 2 * AD_NMOM + i] = w;
+}
+
+/* gnss_noise._use: the model in use from an estimate, plus one standard error, within floors and ceiling */
+static void gn_use(double *aux, const double *cfg, double s2, double tau, double w2) {
+    double top = GN_CEILING * aux[A_AD_SH];
+    double seconds = 0.0; /* gnss_noise.seconds_of_data: the best-observed lag's */
+    for (int i = 1; i < AD_NMOM; i++) seconds = gn_max(seconds, aux[A_AD_W + i]);
+    double infl = 1.0 + sqrt(2.0 * tau / gn_max(seconds, tau));
+    aux[A_GM_SIG] = gn_max(gn_min(sqrt(s2 * infl), top), GN_FLOOR_GM * cfg[K_GM_SIGMA]);
+    aux[A_GM_TAU] = tau;
+    aux[A_GW_SIG] = gn_max(gn_min(sqrt(w2), top), GN_FLOOR_WHITE * cfg[K_GPS_WHITE]);
 }
 
 static void gn_fit(double *aux, const double *cfg) {
@@ -192,15 +246,48 @@ static void gn_fit(double *aux, const double *cfg) {
     }
     double m0 = aux[A_AD_M];
     double s2 = gn_min(best_s2, m0);
-    double top = GN_CEILING * aux[A_AD_SH];
-    double seconds = 0.0;  /* seconds of data behind the best-observed lag */
-    for (int i = 1; i < AD_NMOM; i++)
-        seconds = gn_max(seconds, aux[A_AD_W + i]);
-    /* gnss_noise.variance_inflation: the fitted correlated variance plus one standard error */
-    double infl = 1.0 + sqrt(2.0 * best_tau / gn_max(seconds, best_tau));
-    aux[A_GM_SIG] = gn_max(gn_min(sqrt(s2 * infl), top), GN_FLOOR_GM * cfg[K_GM_SIGMA]);
-    aux[A_GM_TAU] = best_tau;
-    aux[A_GW_SIG] = gn_max(gn_min(sqrt(gn_max(m0 - s2, 0.0)), top), GN_FLOOR_WHITE * cfg[K_GPS_WHITE]);
+    gn_use(aux, cfg, s2, best_tau, gn_max(m0 - s2, 0.0));
+}
+
+/* gnss_noise.ml_update: the maximum-likelihood bank (gps_adaptive_ml) */
+static void gn_ml_update(double *aux, const double *cfg, double t, double c, double h, int still) {
+    double window = cfg[K_AD_WINDOW];
+    if (still) return;
+    double dt = isnan(aux[A_ML_T]) ? 1.0 : gn_max(t - aux[A_ML_T], 0.0);
+    aux[A_ML_T] = t;
+    double lam = exp(-h / window);
+    aux[A_ML_N] = lam * aux[A_ML_N] + 1.0;
+    double step = (log(cfg[K_AD_TAU_MAX]) - log(GN_TAU_MIN_S)) / (GN_TAU_N - 1);
+    double best = -INFINITY, n = aux[A_ML_N];
+    long best_j = -1;
+    for (int g = 0; g < GN_TAU_N; g++) {
+        double tau = exp(log(GN_TAU_MIN_S) + g * step);
+        double phi = exp(-dt / tau);
+        for (int k = 0; k < GN_NR; k++) {
+            long j = (long)g * GN_NR + k;
+            double r = AD_ML_R[k];
+            double x = phi * aux[A_ML_X + j];
+            double p = phi * phi * aux[A_ML_P + j] + (1.0 - r) * (1.0 - phi * phi);
+            double sv = p + r;
+            double nu = c - x;
+            aux[A_ML_A + j] = lam * aux[A_ML_A + j] + nu * nu / sv;
+            aux[A_ML_B + j] = lam * aux[A_ML_B + j] + log(sv);
+            double kg = p / sv;
+            aux[A_ML_X + j] = x + kg * nu;
+            aux[A_ML_P + j] = p * r / sv;
+            double ll = -(n * log(gn_max(aux[A_ML_A + j] / n, 1e-300)) + aux[A_ML_B + j]);
+            if (ll > best) {
+                best = ll;
+                best_j = j;
+            }
+        }
+    }
+    if (best_j < 0) return;
+    long g = best_j / GN_NR;
+    double r = AD_ML_R[best_j - g * GN_NR];
+    double tau = exp(log(GN_TAU_MIN_S) + g * step);
+    double var = aux[A_ML_A + best_j] / n;
+    gn_use(aux, cfg, (1.0 - r) * var, tau, r * var);
 }
 
 static void gn_store(double *aux, long b, double t, double c, double ne, double nn, double s) {
@@ -258,7 +345,10 @@ static void gn_observe(double *aux, const double *cfg, double t, double c, doubl
         aux[A_AD_HI] = (double)(((long)aux[A_AD_HI] + 1) % AD_HIST);
         aux[A_AD_HN] = (double)(n_hist + 1 < AD_HIST ? n_hist + 1 : AD_HIST);
     }
-    gn_fit(aux, cfg);
+    if (cfg[K_AD_ML] != 0.0)
+        gn_ml_update(aux, cfg, t, cc, h, aux[A_STILL] != 0.0);
+    else
+        gn_fit(aux, cfg);
 }
 
 static double gn_white_sigma(const double *aux, double sigma_h) {
