@@ -117,6 +117,14 @@ def _lag(i):
     return AD_LAGS_S[i - 1]
 
 
+@njit(cache=True, inline="always", _nrt=False, error_model="numpy")
+def grid_tau(cfg, g):
+    """Correlation time g of the grid (0 .. TAU_N - 1) the moment fit and the bank search [s]:
+    logarithmic from TAU_MIN_S to gps_adaptive_tau_max_s."""
+    step = (math.log(cfg[K_AD_TAU_MAX]) - math.log(TAU_MIN_S)) / (TAU_N - 1)
+    return math.exp(math.log(TAU_MIN_S) + g * step)
+
+
 @njit(cache=True, _nrt=False, error_model="numpy")
 def reset(aux, cfg):
     """The preset's model in use and as the statistics' prior (first initialisation)."""
@@ -155,9 +163,8 @@ def ml_reset(aux, cfg):
     k_prior = cfg[K_AD_PRIOR]
     aux[A_ML_T] = math.nan
     aux[A_ML_N] = k_prior
-    step = (math.log(cfg[K_AD_TAU_MAX]) - math.log(TAU_MIN_S)) / (TAU_N - 1)
     for g in range(TAU_N):
-        tau_g = math.exp(math.log(TAU_MIN_S) + g * step)
+        tau_g = grid_tau(cfg, g)
         for k in range(NR):
             j = g * NR + k
             aux[A_ML_X + j] = 0.0
@@ -294,12 +301,11 @@ def fit(aux, cfg):
     best = math.inf
     best_tau = cfg[K_GM_TAU]
     best_s2 = 0.0
-    step = (math.log(cfg[K_AD_TAU_MAX]) - math.log(TAU_MIN_S)) / (TAU_N - 1)
     vsum = 0.0  # seconds of standstill data (gps_fit_standstill), the same at every tau
     for i in range(1, AD_NMOM):
         vsum += aux[A_AD_DW + i]
     for g in range(TAU_N):
-        tau = math.exp(math.log(TAU_MIN_S) + g * step)
+        tau = grid_tau(cfg, g)
         num = 0.0
         den = 0.0
         for i in range(1, AD_NMOM):
@@ -382,12 +388,11 @@ def ml_update(aux, cfg, t, c, h, still):
     aux[A_ML_T] = t
     lam = math.exp(-h / window)  # forgetting: a memory of gps_adaptive_window_s seconds of data
     aux[A_ML_N] = lam * aux[A_ML_N] + 1.0
-    step = (math.log(cfg[K_AD_TAU_MAX]) - math.log(TAU_MIN_S)) / (TAU_N - 1)
     best = -math.inf
     best_j = -1
     n = aux[A_ML_N]
     for g in range(TAU_N):
-        tau = math.exp(math.log(TAU_MIN_S) + g * step)
+        tau = grid_tau(cfg, g)
         phi = math.exp(-dt / tau)
         for k in range(NR):
             j = g * NR + k
@@ -409,7 +414,7 @@ def ml_update(aux, cfg, t, c, h, still):
         return  # no point scored (not a number): the model in use stays
     g = best_j // NR
     r = AD_ML_R[best_j - g * NR]
-    tau = math.exp(math.log(TAU_MIN_S) + g * step)
+    tau = grid_tau(cfg, g)
     var = aux[A_ML_A + best_j] / n  # the scale's estimate: sigma^2 = sum(nu^2 / S) / N
     _use(aux, cfg, (1.0 - r) * var, tau, r * var)
 

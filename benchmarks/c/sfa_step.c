@@ -100,6 +100,12 @@ static double gps_evidence_weight(double t, double t_prev, const double *cfg) {
 
 static double gn_lag(int i) { return i == 0 ? 0.0 : AD_LAGS_S[i - 1]; }
 
+/* gnss_noise.grid_tau: correlation time g of the logarithmic grid */
+static double gn_grid_tau(const double *cfg, int g) {
+    double step = (log(cfg[K_AD_TAU_MAX]) - log(GN_TAU_MIN_S)) / (GN_TAU_N - 1);
+    return exp(log(GN_TAU_MIN_S) + g * step);
+}
+
 static void gn_restart(double *aux) {
     aux[A_AD_HN] = 0.0;
     aux[A_AD_HI] = 0.0;
@@ -154,9 +160,8 @@ static void gn_ml_reset(double *aux, const double *cfg) {
     double k_prior = cfg[K_AD_PRIOR];
     aux[A_ML_T] = NAN;
     aux[A_ML_N] = k_prior;
-    double step = (log(cfg[K_AD_TAU_MAX]) - log(GN_TAU_MIN_S)) / (GN_TAU_N - 1);
     for (int g = 0; g < GN_TAU_N; g++) {
-        double tau_g = exp(log(GN_TAU_MIN_S) + g * step);
+        double tau_g = gn_grid_tau(cfg, g);
         for (int k = 0; k < GN_NR; k++) {
             long j = (long)g * GN_NR + k;
             double e_nu2, log_s;
@@ -191,11 +196,10 @@ static void gn_use(double *aux, const double *cfg, double s2, double tau, double
 
 static void gn_fit(double *aux, const double *cfg) {
     double best = INFINITY, best_tau = cfg[K_GM_TAU], best_s2 = 0.0;
-    double step = (log(cfg[K_AD_TAU_MAX]) - log(GN_TAU_MIN_S)) / (GN_TAU_N - 1);
     double vsum = 0.0; /* seconds of standstill data, the same at every tau */
     for (int i = 1; i < AD_NMOM; i++) vsum += aux[A_AD_DW + i];
     for (int g = 0; g < GN_TAU_N; g++) {
-        double tau = exp(log(GN_TAU_MIN_S) + g * step);
+        double tau = gn_grid_tau(cfg, g);
         double num = 0.0, den = 0.0;
         for (int i = 1; i < AD_NMOM; i++) {
             double e = exp(-aux[A_AD_L + i] / tau);
@@ -257,11 +261,10 @@ static void gn_ml_update(double *aux, const double *cfg, double t, double c, dou
     aux[A_ML_T] = t;
     double lam = exp(-h / window);
     aux[A_ML_N] = lam * aux[A_ML_N] + 1.0;
-    double step = (log(cfg[K_AD_TAU_MAX]) - log(GN_TAU_MIN_S)) / (GN_TAU_N - 1);
     double best = -INFINITY, n = aux[A_ML_N];
     long best_j = -1;
     for (int g = 0; g < GN_TAU_N; g++) {
-        double tau = exp(log(GN_TAU_MIN_S) + g * step);
+        double tau = gn_grid_tau(cfg, g);
         double phi = exp(-dt / tau);
         for (int k = 0; k < GN_NR; k++) {
             long j = (long)g * GN_NR + k;
@@ -285,7 +288,7 @@ static void gn_ml_update(double *aux, const double *cfg, double t, double c, dou
     if (best_j < 0) return;
     long g = best_j / GN_NR;
     double r = AD_ML_R[best_j - g * GN_NR];
-    double tau = exp(log(GN_TAU_MIN_S) + g * step);
+    double tau = gn_grid_tau(cfg, (int)g);
     double var = aux[A_ML_A + best_j] / n;
     gn_use(aux, cfg, (1.0 - r) * var, tau, r * var);
 }
