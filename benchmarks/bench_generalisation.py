@@ -21,7 +21,16 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 def main(argv: list[str] | None = None) -> int:
     from sfa.errors import FilterConfigError
     from sfa.presets import datasheet_config_for
-    from tools.bench_generalisation import FAMILIES, REAL_DATA, markdown_table, real_data_row, run_families
+    from tools import real_windows
+    from tools.bench_generalisation import (
+        FAMILIES,
+        REAL_DATA,
+        REAL_WINDOWS,
+        markdown_table,
+        real_data_row,
+        real_windows_row,
+        run_families,
+    )
     from tools.errors import ToolError
     from tools.field_values import parse_field_values
 
@@ -34,8 +43,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--duration", type=float, default=300.0, help="simulated seconds per run (default 300)")
     ap.add_argument("--step", type=float, default=0.5, help="error sampling step [s] (default 0.5)")
     ap.add_argument("--real", action=argparse.BooleanOptionalAction, default=None,
-                    help="also the real-data rows, smartLoc (real and synthesised GNSS) and Dresden "
-                         "(default: on when every family runs)")
+                    help="also the real-data rows, smartLoc (real and synthesised GNSS) and Dresden, and "
+                         "smartLoc from many start times (default: on when every family runs)")
     ap.add_argument("--set", action="append", default=[], metavar="FIELD=VALUE",
                     help="FilterConfig field on top of the datasheet presets, for SFA only (an ablation; "
                          "repeatable), e.g. --set cusum_h_sigma=1e9")
@@ -59,9 +68,15 @@ def main(argv: list[str] | None = None) -> int:
     rows = run_families(names, args.seeds, args.jobs, args.step, args.duration,
                         log=lambda m: print(m, file=sys.stderr), overrides=overrides,
                         first_seed=args.first_seed, known_gnss=args.known_gnss)
+    windows = []
     if args.real if args.real is not None else not (args.family or args.known_gnss):
         rows += [real_data_row(r[0], overrides, log=lambda m: print(m, file=sys.stderr)) for r in REAL_DATA]
+        windows = [real_windows_row(label, overrides=overrides, limit_m=limit)
+                   for label, limit in REAL_WINDOWS]
     print(markdown_table(rows))
+    if windows:
+        print("\nThe real logs with truth from many start times (tools/real_windows.py):\n")
+        print(real_windows.markdown_table(windows))
     print(f"\n{args.seeds} seeds (from {args.first_seed}) x {len(names)} families, "
           f"first {args.duration:g} s of each run, errors every {args.step:g} s"
           f"{known}; "
