@@ -168,9 +168,10 @@ class FilterConfig:
     #: estimate the GNSS error model by maximum likelihood instead of the lag moments' least squares: a
     #: bank of scalar Kalman filters of the cross-track residual, one per (tau, white share) of a grid
     #: (sfa.gnss_noise.ml_update), the scale profiled out, each with the memory gps_adaptive_window_s and
-    #: the preset's expected statistics as its prior. Off in both preset families: on held-out worlds
-    #: it lowers p95 in 7 of 9 families, but on smartLoc's real GNSS p95 goes 1.50 -> 4.40 m
-    #: (docs/filter.md, "Session 34")
+    #: the preset's expected statistics as its prior. On in the datasheet presets since session 35 (off
+    #: here, so a FilterConfig built by hand keeps the moment fit): better on both held-out seed sets, on
+    #: Dresden and the campaign's ramp, level on smartLoc's real GNSS judged from many start times
+    #: (docs/filter.md, "Session 34" and "Session 35")
     gps_adaptive_ml: bool = slot(False, "K_AD_ML")
     # --- gates (probability that a fault-free measurement passes)
     #: odometer gate, chi-square 1 dof [probability]

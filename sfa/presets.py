@@ -236,7 +236,10 @@ def datasheet_config_for(
     with"); ``use_gyro=True`` turns it on with the geometry-derived curvature error. The GNSS error
     model adapts to the receiver's own fixes (``sfa.gnss_noise``, a 600 s memory, the datasheet's
     figures weighted as 30 s of data): no datasheet states a receiver's correlation time, and the
-    reported sigma_h is often wrong.
+    reported sigma_h is often wrong. It is the maximum-likelihood bank (``gps_adaptive_ml``) since
+    session 35: better than the moment fit on both held-out seed sets, on Dresden and on the fault
+    campaign's ramp, and level on smartLoc's real GNSS judged from many start times (docs/filter.md,
+    "Session 35").
     """
     imu_spec, odo_spec, gps_spec = _lookup((IMU_CLASSES, ODOMETER_CLASSES, GNSS_CLASSES), imu, odometer, gps)
     cfg = _build(
@@ -254,6 +257,7 @@ def datasheet_config_for(
         registration_psd_m2pm=1.0e-3,
         gps_adaptive_window_s=600.0,
         gps_adaptive_prior_s=30.0,
+        gps_adaptive_ml=True,
     )
     return cfg.replace(**overrides) if overrides else cfg
 

@@ -117,16 +117,43 @@ def test_bundled_input_is_the_published_file():
     assert hashlib.sha256(data).hexdigest() == published
 
 
+def _listener_filter(**overrides):
+    from listener.config import ListenerConfig
+    from sfa.presets import config_for
+
+    sel = ListenerConfig().filter
+    return config_for(sel.presets, sel.imu, sel.odometer, sel.gps, **overrides)
+
+
 def test_pipeline_accuracy_with_real_gnss(spp_capture):
-    """SFA on all-real sensors (odometer + single-point GNSS from the urban-canyon pseudoranges).
-    Measured when written: rms 2.176 m, p95 3.632 m, max 4.284 m along track; most fixes are gated or
-    held off (their errors are tens of metres). Bounds ~5 % above the measurement."""
-    result = run_pipeline(spp_capture.capture, spp_capture.track)
+    """SFA on all-real sensors (odometer + single-point GNSS from the urban-canyon pseudoranges), with
+    the moment fit of the GNSS error model (``gps_adaptive_ml = false``; the listener's default until
+    session 35). Measured when written: rms 2.176 m, p95 3.632 m, max 4.284 m along track; most fixes
+    are gated or held off (their errors are tens of metres). Bounds ~5 % above the measurement."""
+    result = run_pipeline(spp_capture.capture, spp_capture.track,
+                          filter_config=_listener_filter(gps_adaptive_ml=False))
     fig = truth_figures(result["estimates"], read_truth(spp_capture.truth))
     assert fig["n"] > 1300
     assert fig["p95_m"] <= 3.81
     assert fig["max_m"] <= 4.50
     assert fig["rms_m"] <= 2.29
+    out = result["metrics"]["filter"]["outcomes"]
+    assert out["odo_accepted"] == 1372
+    assert out["gps_accepted"] + out.get("gps_gated", 0) + out.get("gps_held_off", 0) == 283
+
+
+def test_pipeline_accuracy_with_real_gnss_under_the_default_model(spp_capture):
+    """The same with the listener's default filter (the maximum-likelihood GNSS model since session 35).
+    On this log from its first second it misses the issue's 3 m: measured rms 3.307 m, p95 4.399 m, max
+    5.633 m, coverage 100 %. Judged from 15 start times it is level with the moment fit (docs/filter.md,
+    "Session 35": median window p95 3.19 m for both). Bounds ~5 % above the measurement."""
+    result = run_pipeline(spp_capture.capture, spp_capture.track)
+    fig = truth_figures(result["estimates"], read_truth(spp_capture.truth))
+    assert fig["n"] > 1300
+    assert fig["p95_m"] <= 4.62
+    assert fig["max_m"] <= 5.91
+    assert fig["rms_m"] <= 3.47
+    assert fig["coverage"] >= 0.99
     out = result["metrics"]["filter"]["outcomes"]
     assert out["odo_accepted"] == 1372
     assert out["gps_accepted"] + out.get("gps_gated", 0) + out.get("gps_held_off", 0) == 283
