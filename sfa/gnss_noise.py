@@ -33,7 +33,7 @@ reported one's model and lets only that one learn.
 
 With ``gps_adaptive_ml`` the model is instead the maximum-likelihood point of a bank of scalar Kalman
 filters of the same residual over a (tau, white share) grid (``ml_update``; docs/filter.md, "Adaptive
-GNSS error model"); off in the presets.
+GNSS error model"); on in the datasheet presets since session 35, off in a FilterConfig built by hand.
 
 With ``gps_adaptive_window_s = 0`` the preset's model is used unchanged and these functions only
 copy it into ``aux``. Slots: ``sfa.layout`` (A_GM_SIG .. A_AD_HIST, A_ML_T .. A_ML_B).

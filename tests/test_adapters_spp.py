@@ -8,6 +8,7 @@ import math
 import numpy as np
 import pytest
 
+from listener.config import ListenerConfig
 from tools.adapters.evaluate import read_truth, run_pipeline, truth_figures
 from tools.adapters.smartloc import SmartLocConfig, convert_smartloc, default_source_dir
 from tools.adapters.spp import (
@@ -117,21 +118,13 @@ def test_bundled_input_is_the_published_file():
     assert hashlib.sha256(data).hexdigest() == published
 
 
-def _listener_filter(**overrides):
-    from listener.config import ListenerConfig
-    from sfa.presets import config_for
-
-    sel = ListenerConfig().filter
-    return config_for(sel.presets, sel.imu, sel.odometer, sel.gps, **overrides)
-
-
 def test_pipeline_accuracy_with_real_gnss(spp_capture):
     """SFA on all-real sensors (odometer + single-point GNSS from the urban-canyon pseudoranges), with
     the moment fit of the GNSS error model (``gps_adaptive_ml = false``; the listener's default until
     session 35). Measured when written: rms 2.176 m, p95 3.632 m, max 4.284 m along track; most fixes
     are gated or held off (their errors are tens of metres). Bounds ~5 % above the measurement."""
     result = run_pipeline(spp_capture.capture, spp_capture.track,
-                          filter_config=_listener_filter(gps_adaptive_ml=False))
+                          filter_config=ListenerConfig().filter.filter_config(gps_adaptive_ml=False))
     fig = truth_figures(result["estimates"], read_truth(spp_capture.truth))
     assert fig["n"] > 1300
     assert fig["p95_m"] <= 3.81

@@ -293,25 +293,33 @@ def _convert_real(adapter: str, gnss: str | None, out_dir: str):
     return convert_dresden(None, out_dir, DresdenConfig())
 
 
+def _replayed_measurements(conv, track) -> list:
+    """The measurements the replay dates from a converted log's capture (what its baselines run on)."""
+    from dataclasses import replace as dc_replace
+
+    from tools.adapters.evaluate import listener_config_for, recommended_hold_s
+    from tools.replay import ReplayOptions, replay_capture
+
+    return replay_capture(conv.capture, track, dc_replace(
+        ReplayOptions(config=listener_config_for(recommended_hold_s(conv))),
+        record_measurements=True)).measurements
+
+
 def real_windows_row(label: str, wc=None, overrides: dict | None = None, limit_m: float = 3.0) -> dict:
     """A real-data row with truth (smartLoc) judged from many start times (``tools.real_windows``):
     SFA with the listener's default filter and the baselines, re-initialised from the truth every
     ``wc.step_s`` and run for ``wc.window_s``; the summary over the windows (``real_windows.summary``,
     ``limit_m`` the p95 a window is counted against)."""
     import tempfile
-    from dataclasses import replace as dc_replace
 
     from listener.config import ListenerConfig
-    from sfa.presets import config_for
     from tools import real_windows
-    from tools.adapters.evaluate import listener_config_for, read_truth, recommended_hold_s
+    from tools.adapters.evaluate import read_truth
     from tools.errors import ToolError
-    from tools.replay import ReplayOptions, replay_capture
     from track_db import TrackDatabase
 
     _, adapter, gnss, description = next(r for r in REAL_DATA if r[0] == label)
-    sel = ListenerConfig().filter
-    cfg = config_for(sel.presets, sel.imu, sel.odometer, sel.gps, **(overrides or {}))
+    cfg = ListenerConfig().filter.filter_config(**(overrides or {}))
     wc = wc or real_windows.WindowConfig()
     with tempfile.TemporaryDirectory(prefix="sfa-real-") as tmp:
         conv = _convert_real(adapter, gnss, tmp)
@@ -319,10 +327,7 @@ def real_windows_row(label: str, wc=None, overrides: dict | None = None, limit_m
             raise ToolError(f"{label}: the log has no truth, so it cannot be judged from many start times")
         truth = read_truth(conv.truth)
         track = TrackDatabase.open(conv.track)
-        meas = replay_capture(conv.capture, track, dc_replace(
-            ReplayOptions(config=listener_config_for(recommended_hold_s(conv))),
-            record_measurements=True)).measurements
-        windows = real_windows.windowed(track, meas, truth, cfg, wc)
+        windows = real_windows.windowed(track, _replayed_measurements(conv, track), truth, cfg, wc)
         track.close()
     return {"family": f"{label} ({len(windows)} windows of {wc.window_s:g} s, every {wc.step_s:g} s)",
             "description": description, "per_window": windows, **real_windows.summary(windows, limit_m)}
@@ -339,10 +344,8 @@ def real_data_row(label: str, overrides: dict | None = None, log=print) -> dict:
     self-consistency check) and the baselines are not given (the EKF would be judged against the fixes
     it is fed)."""
     import tempfile
-    from dataclasses import replace as dc_replace
 
     from listener.config import ListenerConfig
-    from sfa.presets import config_for
     from tools.accuracy import accuracy
     from tools.adapters.evaluate import (
         listener_config_for,
@@ -353,12 +356,10 @@ def real_data_row(label: str, overrides: dict | None = None, log=print) -> dict:
         truth_figures,
     )
     from tools.baselines import baseline_estimates
-    from tools.replay import ReplayOptions, replay_capture
     from track_db import TrackDatabase
 
     _, adapter, gnss, description = next(r for r in REAL_DATA if r[0] == label)
-    sel = ListenerConfig().filter
-    cfg = config_for(sel.presets, sel.imu, sel.odometer, sel.gps, **(overrides or {}))
+    cfg = ListenerConfig().filter.filter_config(**(overrides or {}))
     row: dict = {"family": label, "seeds": 1, "description": description}
     with tempfile.TemporaryDirectory(prefix="sfa-real-") as tmp:
         conv = _convert_real(adapter, gnss, tmp)
@@ -379,9 +380,7 @@ def real_data_row(label: str, overrides: dict | None = None, log=print) -> dict:
             log(f"generalisation: {label} {key}")
         if truth:  # the baselines of `sfa replay --truth` (tools.baselines), on the measurements it dates
             track = TrackDatabase.open(conv.track)
-            meas = replay_capture(conv.capture, track, dc_replace(
-                ReplayOptions(config=lcfg), record_measurements=True)).measurements
-            base = baseline_estimates(track, meas)
+            base = baseline_estimates(track, _replayed_measurements(conv, track))
             for key, name in (("plain-ekf", "plain FilterPy EKF"), ("odo-dr", "odometer dead reckoning")):
                 a = accuracy(base[name]["epoch"], base[name]["arc_length"], reference["epoch"],
                              reference["arc_length"])

@@ -57,10 +57,10 @@ def _window(measurements, t0: float, t1: float) -> list:
 def run_window(track, measurements, truth: dict, cfg, t0: float, t1: float) -> dict:
     """SFA (``cfg``) and the baselines over [t0, t1], initialised from the truth at t0: each one's
     p95 and max |along-track error| [m], and SFA's interval coverage."""
-    from sfa.baselines import odometer_dead_reckoning, plain_filterpy_ekf
     from sfa.filter import TrackFilter
     from sfa.measurements import InitMeas
     from tools.accuracy import accuracy
+    from tools.baselines import baseline_estimates
 
     line = next((m.line_id for m in measurements if isinstance(m, InitMeas)), None)
     init = InitMeas(t0, float(np.interp(t0, truth["epoch"], truth["arc_length"])),
@@ -77,10 +77,9 @@ def run_window(track, measurements, truth: dict, cfg, t0: float, t1: float) -> d
     a = accuracy(est[:, 0], est[:, 1], truth["epoch"], truth["arc_length"], est[:, 2], est[:, 3])
     out = {"t0": t0, "sfa_p95": a.p95_m, "sfa_max": a.max_m,
            "sfa_coverage": math.nan if a.coverage is None else a.coverage}
-    for key, res in (("plain-ekf", plain_filterpy_ekf(track, meas)),
-                     ("odo-dr", odometer_dead_reckoning(meas))):
-        ok = np.isfinite(res.epoch_s) & np.isfinite(res.arc_length_m)
-        b = accuracy(res.epoch_s[ok], res.arc_length_m[ok], truth["epoch"], truth["arc_length"])
+    base = baseline_estimates(track, meas)
+    for key, name in (("plain-ekf", "plain FilterPy EKF"), ("odo-dr", "odometer dead reckoning")):
+        b = accuracy(base[name]["epoch"], base[name]["arc_length"], truth["epoch"], truth["arc_length"])
         out[f"{key}_p95"], out[f"{key}_max"] = b.p95_m, b.max_m
     return out
 
